@@ -1,0 +1,13 @@
+# dolfinx_universal on the official DOLFINx 0.11 image: installs the package and runs the tests.
+#
+#   docker build -t dolfinx_universal .
+#   docker run --rm dolfinx_universal                      # the test suite (serial and MPI)
+#   docker run --rm -v $PWD/out:/work/out dolfinx_universal python3 demos/quality.py --out out
+FROM ghcr.io/fenics/dolfinx/dolfinx:v0.11.0
+
+WORKDIR /work
+COPY . /work
+# DOLFINx, basix, ufl, mpi4py and petsc4py come with the image: do not install the PyPI wheel.
+RUN python3 -m pip install --no-cache-dir -e ".[test]"
+ENV OMP_NUM_THREADS=1 MPLBACKEND=Agg
+CMD ["python3", "-m", "pytest", "-q"]

@@ -1,0 +1,55 @@
+"""Universal meshes for DOLFINx: conform one background mesh to curved and moving domains."""
+
+try:  # the PyPI wheel of DOLFINx must be initialised before dolfinx/petsc4py are imported
+    import dolfinx_solver  # noqa: F401
+except ImportError:  # DOLFINx from the official Docker images or conda
+    pass
+
+from importlib.metadata import PackageNotFoundError, version
+
+from .background import equilateral_mesh, refine_uniform
+from .boundaries import (
+    Boundary,
+    Circle,
+    Domain,
+    Ellipse,
+    ImplicitCurve,
+    PeriodicSpline,
+    PolarCurve,
+    RigidMotion,
+)
+from .classify import conditioning_angle, positive_edges, positively_cut
+from .conform import IMMERSED, OUTER, ConformingMesh, conform
+from .curved import CurvedMesh, boundary_dof_data, curved_mesh
+from .quality import quality_report
+from .validation import MeshingError
+
+try:
+    __version__ = version("dolfinx_universal")
+except PackageNotFoundError:  # pragma: no cover - running from a source tree
+    __version__ = "0.0.0"
+
+__all__ = [
+    "IMMERSED",
+    "OUTER",
+    "Boundary",
+    "Circle",
+    "ConformingMesh",
+    "CurvedMesh",
+    "Domain",
+    "Ellipse",
+    "ImplicitCurve",
+    "MeshingError",
+    "PeriodicSpline",
+    "PolarCurve",
+    "RigidMotion",
+    "boundary_dof_data",
+    "conditioning_angle",
+    "conform",
+    "curved_mesh",
+    "equilateral_mesh",
+    "positive_edges",
+    "positively_cut",
+    "quality_report",
+    "refine_uniform",
+]

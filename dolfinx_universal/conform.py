@@ -1,0 +1,496 @@
+"""Conform a background mesh to an immersed domain: classify, apply M_h, build the DOLFINx mesh."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+from mpi4py import MPI
+
+import numpy as np
+import numpy.typing as npt
+from dolfinx import geometry as dgeometry
+from dolfinx import mesh as dmesh
+
+from .classify import (
+    cell_diameters,
+    conditioning_angle,
+    kept_cells,
+    perturbation_candidates,
+    positive_edges,
+    positively_cut,
+    proximal_vertex,
+    signed_areas,
+    straight_map,
+)
+from .validation import collective_call, raise_collective, vertex_reduce, where
+
+if TYPE_CHECKING:
+    from .boundaries import Boundary
+
+__all__ = ["IMMERSED", "OUTER", "ConformingMesh", "StraightMap", "UniversalMesh", "conform"]
+
+IMMERSED = 1
+"""Facet tag of the immersed boundary (the snapped positive edges)."""
+OUTER = 2
+"""Facet tag of the background's own boundary where it bounds the domain."""
+
+
+@dataclass
+class ConformingMesh:
+    """A straight-edged mesh conforming to an immersed domain, with maps to its background.
+
+    Indices are process-local. ``mesh`` is a DOLFINx submesh of ``background`` (same cells,
+    moved vertices, no vertex added); per-vertex arrays are indexed by ``mesh`` vertices.
+    """
+
+    mesh: dmesh.Mesh
+    """Conforming mesh with degree-1 geometry (vertices at ``M_h`` images)."""
+    facet_tags: dmesh.MeshTags
+    """Exterior facets: :data:`IMMERSED` on Gamma_h, :data:`OUTER` on the background boundary."""
+    background: dmesh.Mesh
+    boundary: Boundary
+    cell_map: npt.NDArray[np.int32]
+    """``mesh`` cell -> ``background`` cell, ``(num_cells,)``."""
+    vertex_map: npt.NDArray[np.int32]
+    """``mesh`` vertex -> ``background`` vertex, ``(num_vertices,)``."""
+    node_map: npt.NDArray[np.int32]
+    """``mesh`` geometry node -> ``background`` geometry node."""
+    sign: npt.NDArray[np.float64]
+    """Final vertex signs (-1 inside, +1 on Gamma after snapping), ``(num_vertices,)``."""
+    background_x: npt.NDArray[np.float64]
+    """Vertex positions in the (perturbed) background, ``(num_vertices, 2)``."""
+    on_positive_edge: npt.NDArray[np.bool_]
+    """Vertices snapped onto Gamma, ``(num_vertices,)``."""
+    h: npt.NDArray[np.float64]
+    """Mesh size used at each vertex, ``(num_vertices,)``."""
+    R_r: npt.NDArray[np.float64]
+    """Relaxation radius used at each vertex, ``(num_vertices,)``."""
+    alpha: float
+    eta: float
+    num_relocated: int
+    """Vertices relocated onto Gamma by the eta perturbation (global count)."""
+    moved: npt.NDArray[np.bool_]
+    """Vertices whose position differs from the original background, ``(num_vertices,)``."""
+    timings: dict[str, float] = field(default_factory=dict)
+    """Wall-clock seconds of the stages (this rank)."""
+
+    @property
+    def cells(self) -> npt.NDArray[np.int32]:
+        """Cell -> vertex connectivity of ``mesh``, ``(num_cells, 3)``."""
+        return self.mesh.topology.connectivity(2, 0).array.reshape(-1, 3)
+
+    @property
+    def x(self) -> npt.NDArray[np.float64]:
+        """Vertex coordinates of ``mesh`` by vertex index, ``(num_vertices, 2)``."""
+        v2n = np.empty(len(self.sign), dtype=np.int32)
+        v2n[self.cells] = self.mesh.geometry.dofmaps[0][:, :3]
+        return self.mesh.geometry.x[v2n, :2]
+
+    @property
+    def positively_cut(self) -> npt.NDArray[np.bool_]:
+        """Positively cut cells of ``mesh`` (one vertex inside), ``(num_cells,)``."""
+        return positively_cut(self.sign, self.cells)
+
+
+def _local_arrays(msh: dmesh.Mesh):
+    """Vertex coordinates, cells and vertex -> node map of a degree-1 mesh (process-local)."""
+    topo = msh.topology
+    topo.create_connectivity(2, 0)
+    dofmap = msh.geometry.dofmaps[0]
+    if dofmap.shape[1] != 3:
+        raise ValueError("the background mesh must have degree-1 (straight) triangle geometry")
+    c2v = topo.connectivity(2, 0).array.reshape(-1, 3)
+    imv = topo.index_map(0)
+    v2n = np.empty(imv.size_local + imv.num_ghosts, dtype=np.int32)
+    v2n[c2v] = dofmap
+    return msh.geometry.x[v2n, :2].copy(), c2v, v2n
+
+
+def _vertex_sizes(imv, x, c2v, num_owned: int, local: bool, comm: MPI.Comm):
+    """Mesh size at each vertex: the global max diameter, or the max over incident cells."""
+    diam = cell_diameters(x, c2v[:num_owned])
+    if not local:
+        hmax = comm.allreduce(float(diam.max()) if len(diam) else 0.0, op=MPI.MAX)
+        return np.full(len(x), hmax)
+    hv = np.zeros(len(x))
+    np.maximum.at(hv, c2v[:num_owned].ravel(), np.repeat(diam, 3))
+    return vertex_reduce(imv, hv, "max")
+
+
+def _incidence(imv, vertices: npt.NDArray, n: int) -> npt.NDArray[np.float64]:
+    """Global number of times each local vertex appears in ``vertices`` (over all ranks)."""
+    count = np.bincount(np.asarray(vertices).ravel(), minlength=n).astype(np.float64)
+    return vertex_reduce(imv, count, "sum")
+
+
+def _check_containment(background, boundary, cells, comm) -> list[str]:
+    """Points of Gamma that lie in no background cell (collective)."""
+    pts = boundary.sample(2000)
+    pts3 = np.zeros((len(pts), 3))
+    pts3[:, :2] = pts
+    tree = dgeometry.bb_tree(background, 2, entities=cells.astype(np.int32))
+    cand = dgeometry.compute_collisions_points(tree, pts3)
+    hits = dgeometry.compute_colliding_cells(background, cand, pts3)
+    found = (np.diff(hits.offsets) > 0).astype(np.int32)
+    found = comm.allreduce(found, op=MPI.SUM) if comm.size > 1 else found
+    missing = pts[found == 0]
+    if len(missing) and comm.rank == 0:
+        return [
+            f"the immersed boundary leaves the background mesh near {where(missing)}: "
+            "enlarge the background so that it contains the domain's boundary"
+        ]
+    return []
+
+
+@dataclass
+class StraightMap:
+    """Classification of the background vertices against a domain and their images under M_h.
+
+    Arrays are indexed by process-local background vertices (owned and ghost) or cells.
+    """
+
+    sign: npt.NDArray[np.float64]
+    """Final vertex signs (after the eta perturbation), ``(num_vertices,)``."""
+    phi: npt.NDArray[np.float64]
+    """Signed distances; ``+-inf`` outside the band near Gamma, ``(num_vertices,)``."""
+    closest: npt.NDArray[np.float64]
+    """Closest points ``pi(x)`` (NaN outside the band), ``(num_vertices, 2)``."""
+    x: npt.NDArray[np.float64]
+    """Background positions after the eta perturbation, ``(num_vertices, 2)``."""
+    y: npt.NDArray[np.float64]
+    """Images ``M_h(x)``, ``(num_vertices, 2)``."""
+    on_positive_edge: npt.NDArray[np.bool_]
+    kept: npt.NDArray[np.bool_]
+    """Cells of ``T_h^sub`` (owned and ghost cells), ``(num_cells,)``."""
+    num_relocated: int
+    timings: dict[str, float]
+
+
+class UniversalMesh:
+    """A background mesh prepared once to be conformed to any number of domains (SPEC §5).
+
+    Everything that depends only on the background (vertex arrays, connectivities, mesh
+    sizes, parameters) is computed here; :meth:`conform` then costs a classification, the
+    projections of the vertices near Gamma and the DOLFINx mesh construction.
+
+    Parameters
+    ----------
+    background
+        Degree-1 triangle mesh containing the closure of the domain, acute near Gamma;
+        distributed with shared-facet ghosts (see :mod:`dolfinx_universal.background`).
+    R_r
+        Relaxation radius; default ``relaxation_factor * h``. Must exceed ``h``.
+    alpha
+        Relaxation factor in ``[(1 + h/R_r)^-1, 1]``; default ``(1 + h/R_r)^-1``.
+    eta
+        Quality perturbation threshold; 0 disables it.
+    relaxation_factor
+        ``R_r / h`` when ``R_r`` is not given.
+    local_size
+        Use at each vertex the largest diameter of its cells as ``h`` (graded meshes)
+        instead of the global largest diameter.
+    """
+
+    def __init__(
+        self,
+        background: dmesh.Mesh,
+        *,
+        R_r: float | None = None,
+        alpha: float | None = None,
+        eta: float = 0.2,
+        relaxation_factor: float = 3.0,
+        local_size: bool = False,
+    ):
+        self.background = background
+        self.eta = float(eta)
+        comm = self.comm = background.comm
+        topo = background.topology
+        self._imv = topo.index_map(0)
+        self._nco = topo.index_map(2).size_local
+        x, c2v, v2n = _local_arrays(background)
+        self._x, self._c2v, self._v2n = x, c2v, v2n
+        nv = len(x)
+        bad = ~np.isfinite(x).all(axis=1)
+        raise_collective(
+            comm, [f"background mesh has NaN/inf coordinates at {where(x[bad])}"] if bad.any()
+            else []
+        )
+        self.h = _vertex_sizes(self._imv, x, c2v, self._nco, local_size, comm)
+        self.R_r = relaxation_factor * self.h if R_r is None else np.full(nv, float(R_r))
+        ratio = self.h / np.maximum(self.R_r, np.finfo(float).tiny)
+        worst = comm.allreduce(float(ratio.max()) if nv else 0.0, op=MPI.MAX)
+        if worst >= 1.0:
+            raise ValueError(f"R_r must exceed the mesh size h (got R_r/h = {1 / worst:.3g})")
+        alpha_min = 1.0 / (1.0 + worst)
+        if alpha is None:
+            alpha = alpha_min
+        elif not (alpha_min - 1e-12 <= alpha <= 1.0):
+            raise ValueError(f"alpha must lie in [(1 + h/R_r)^-1, 1] = [{alpha_min:.4g}, 1]")
+        self.alpha = float(alpha)
+        for a, b in ((2, 1), (1, 2), (1, 0)):
+            topo.create_connectivity(a, b)
+        self._c2f = topo.connectivity(2, 1).array.reshape(-1, 3)
+        f2c = topo.connectivity(1, 2)
+        self._f2c_offsets, self._f2c = f2c.offsets, f2c.array
+        ext = dmesh.exterior_facet_indices(topo)
+        self._outer_vertices = np.unique(topo.connectivity(1, 0).array.reshape(-1, 2)[ext])
+        n2v = np.empty(len(background.geometry.x), dtype=np.int32)
+        n2v[v2n] = np.arange(nv, dtype=np.int32)
+        self._n2v = n2v
+
+    def straight_map(self, boundary: Boundary) -> StraightMap:
+        """Classify the background against ``boundary`` and compute ``M_h`` (collective).
+
+        Raises
+        ------
+        MeshingError
+            On every rank, when the domain cannot be meshed on this background; the message
+            says where and what to do.
+        """
+        comm, imv, nco = self.comm, self._imv, self._nco
+        x, c2v = self._x, self._c2v
+        nv = len(x)
+        timings: dict[str, float] = {}
+        t0 = time.perf_counter()
+        # Classification: signs everywhere (cheap), projections only in the band near Gamma.
+        s = np.asarray(collective_call(comm, "the sign test", boundary.sign, x), dtype=float)
+        rmax = float(self.R_r.max()) if nv else 0.0
+        band = np.asarray(collective_call(comm, "the band test", boundary.near, x, rmax), bool)
+        timings["classify"] = time.perf_counter() - t0
+
+        t1 = time.perf_counter()
+        phi = np.where(s < 0, -np.inf, np.inf)
+        closest = np.full((nv, 2), np.nan)
+        normal = np.full((nv, 2), np.nan)
+        phi_b, y_b = collective_call(comm, "closest-point projection", boundary.project, x[band])
+        bad = ~(np.isfinite(phi_b) & np.isfinite(y_b).all(axis=1))
+        raise_collective(
+            comm,
+            [f"closest-point projection returned NaN/inf for vertices at {where(x[band][bad])}"]
+            if bad.any()
+            else [],
+        )
+        phi[band], closest[band] = phi_b, y_b
+        normal[band] = collective_call(comm, "the normal", boundary.normal, y_b)
+        timings["project"] = time.perf_counter() - t1
+
+        # Quality perturbation: relocate inside vertices too close to Gamma, to a fixed point.
+        t2 = time.perf_counter()
+        owned = c2v[:nco]
+        near_cells = np.flatnonzero(band[owned].any(axis=1))
+        near = owned[near_cells]
+        xp = x.copy()
+        relocated = np.zeros(nv, dtype=bool)
+        while self.eta > 0:
+            flag = np.zeros(nv)
+            flag[perturbation_candidates(xp, phi, s, near, self.eta)] = 1.0
+            new = (vertex_reduce(imv, flag, "sum") > 0) & ~relocated
+            if comm.allreduce(int(new[: imv.size_local].sum())) == 0:
+                break
+            xp[new], phi[new], s[new] = closest[new], 0.0, 1.0
+            relocated |= new
+        num_relocated = comm.allreduce(int(relocated[: imv.size_local].sum()))
+
+        # Positive edges, Gamma_h, and the checks of SPEC §6.
+        pc_owned = near_cells[positively_cut(s, near)]
+        u, v, w = positive_edges(s, owned[pc_owned])
+        pe_count = _incidence(imv, np.concatenate([u, v]), nv)
+        on_pe = pe_count > 0
+        kept = kept_cells(s, c2v)
+        in_kept = _incidence(imv, owned[kept[:nco]], nv) > 0
+        problems = self._check_classification(
+            xp, s, phi, pc_owned, u, v, w, pe_count, in_kept, kept
+        )
+        raise_collective(comm, problems)
+
+        y = straight_map(xp, phi, closest, normal, on_pe, self.h, self.R_r, self.alpha)
+        problems = self._check_output(y, np.flatnonzero(kept[:nco]), in_kept)
+        raise_collective(comm, problems)
+        near_cells = near_cells.astype(np.int32)
+        raise_collective(comm, _check_containment(self.background, boundary, near_cells, comm))
+        timings["map"] = time.perf_counter() - t2
+        return StraightMap(
+            sign=s, phi=phi, closest=closest, x=xp, y=y, on_positive_edge=on_pe, kept=kept,
+            num_relocated=num_relocated, timings=timings,
+        )
+
+    def conform(self, boundary: Boundary) -> ConformingMesh:
+        """The straight conforming mesh of the domain bounded by ``boundary`` (collective).
+
+        Vertices of positive edges are snapped onto Gamma, inside vertices within ``R_r`` of
+        Gamma are relaxed inwards by at most ``alpha h``, triangles with all vertices
+        outside are dropped. No vertex is added; the kept triangles keep their connectivity.
+
+        Raises
+        ------
+        MeshingError
+            On every rank, when the domain cannot be meshed on this background.
+        """
+        sm = self.straight_map(boundary)
+        t3 = time.perf_counter()
+        kc = np.flatnonzero(sm.kept[: self._nco]).astype(np.int32)
+        sub, cell_emap, vertex_emap, node_map = dmesh.create_submesh(self.background, 2, kc)
+        sub.geometry.x[:, :2] = sm.y[self._n2v[node_map]]
+        sub.geometry.x[:, 2] = 0.0
+        stopo = sub.topology
+        stopo.create_connectivity(2, 0)
+        simv, simc = stopo.index_map(0), stopo.index_map(2)
+        nsv = simv.size_local + simv.num_ghosts
+        vmap = vertex_emap.sub_topology_to_topology(np.arange(nsv, dtype=np.int32), False)
+        cmap = cell_emap.sub_topology_to_topology(
+            np.arange(simc.size_local + simc.num_ghosts, dtype=np.int32), False
+        )
+        stopo.create_connectivity(1, 2)
+        stopo.create_connectivity(1, 0)
+        facets = dmesh.exterior_facet_indices(stopo)
+        fv = stopo.connectivity(1, 0).array.reshape(-1, 2)[facets]
+        values = np.where(sm.on_positive_edge[vmap[fv]].all(axis=1), IMMERSED, OUTER)
+        tags = dmesh.meshtags(sub, 1, facets.astype(np.int32), values.astype(np.int32))
+        timings = dict(sm.timings, mesh=time.perf_counter() - t3)
+        moved = np.any(sm.y != self._x, axis=1)
+        return ConformingMesh(
+            mesh=sub,
+            facet_tags=tags,
+            background=self.background,
+            boundary=boundary,
+            cell_map=np.asarray(cmap, dtype=np.int32),
+            vertex_map=np.asarray(vmap, dtype=np.int32),
+            node_map=np.asarray(node_map, dtype=np.int32),
+            sign=sm.sign[vmap],
+            background_x=sm.x[vmap],
+            on_positive_edge=sm.on_positive_edge[vmap],
+            h=self.h[vmap],
+            R_r=self.R_r[vmap],
+            alpha=self.alpha,
+            eta=self.eta,
+            num_relocated=sm.num_relocated,
+            moved=moved[vmap],
+            timings=timings,
+        )
+
+    def _check_classification(
+        self, xp, s, phi, pc_owned, u, v, w, pe_count, in_kept, kept
+    ) -> list[str]:
+        """Local problems with the classification (SPEC §2, §6)."""
+        problems = []
+        if len(pc_owned):
+            theta = conditioning_angle(xp, phi, u, v, w)
+            bad = theta >= np.pi / 2 - 1e-12
+            if bad.any():
+                p = xp[proximal_vertex(xp, phi, u[bad], v[bad], w[bad])]
+                problems.append(
+                    f"conditioning angle of {np.degrees(theta[bad]).max():.1f} degrees (must "
+                    f"be < 90) in positively cut triangles near {where(p)}: use a background "
+                    "mesh that is acute near the boundary (e.g. equilateral)"
+                )
+            # The positive edge is the facet opposite the inside vertex.
+            k = np.argmin(s[self._c2v[pc_owned]], axis=1)
+            f = self._c2f[pc_owned, k]
+            off = self._f2c_offsets
+            ncell = off[f + 1] - off[f]
+            lone = ncell == 1
+            if lone.any():
+                problems.append(
+                    "the domain reaches the boundary of the background mesh near "
+                    f"{where(0.5 * (xp[u[lone]] + xp[v[lone]]))}: enlarge the background"
+                )
+            two = np.flatnonzero(ncell == 2)
+            c0, c1 = self._f2c[off[f[two]]], self._f2c[off[f[two]] + 1]
+            other = np.where(c0 == pc_owned[two], c1, c0)
+            shared = two[kept[other]]
+            if len(shared):
+                problems.append(
+                    "Gamma crosses both triangles beside the positive edge near "
+                    f"{where(0.5 * (xp[u[shared]] + xp[v[shared]]))} (a thin part of the domain "
+                    "or of its exterior): the background is too coarse there, refine near it"
+                )
+        nvo = self._imv.size_local
+        chain = (pe_count[:nvo] > 0) & (pe_count[:nvo] != 2)
+        if chain.any():
+            problems.append(
+                "Gamma_h (the union of positive edges) is not a set of closed simple curves at "
+                f"vertices {where(xp[:nvo][chain])}: the background is too coarse for the "
+                "boundary's curvature or for the gap between its parts there; refine near them"
+            )
+        lost = in_kept[:nvo] & (s[:nvo] > 0) & (pe_count[:nvo] == 0)
+        if lost.any():
+            problems.append(
+                f"vertices outside the domain at {where(xp[:nvo][lost])} belong to kept "
+                "triangles but to no positive edge, so they would not be snapped: Gamma is "
+                "under-resolved there; refine the background near them"
+            )
+        return problems
+
+    def _check_output(self, y, kc, in_kept) -> list[str]:
+        """Local problems with the conforming triangles: inversion, degeneracy, moved outer
+        boundary."""
+        problems = []
+        x = self._x
+        cells = self._c2v[kc]
+        moved = np.any(y[cells] != x[cells], axis=(1, 2))
+        cells = cells[moved]  # unmoved triangles keep their (checked) background shape
+        a0, a1 = signed_areas(x, cells), signed_areas(y, cells)
+        d2 = cell_diameters(x, cells) ** 2
+        inverted = (np.sign(a1) != np.sign(a0)) | (np.abs(a1) <= 1e-10 * d2)
+        if inverted.any():
+            centre = y[cells[inverted]].mean(axis=1)
+            problems.append(
+                f"{int(inverted.sum())} conforming triangles would be inverted or degenerate "
+                f"near {where(centre)}: the background is too coarse or not acute there; "
+                "refine near those points or use an acute (e.g. equilateral) background"
+            )
+        ev = self._outer_vertices
+        ev = ev[in_kept[ev]]
+        shifted = ev[np.any(y[ev] != x[ev], axis=1)]
+        if len(shifted):
+            problems.append(
+                f"the boundary of the background mesh would move at {where(x[shifted])}: "
+                "Gamma comes within R_r of it there; enlarge the background or reduce R_r"
+            )
+        return problems
+
+
+def conform(
+    background: dmesh.Mesh,
+    boundary: Boundary,
+    *,
+    R_r: float | None = None,
+    alpha: float | None = None,
+    eta: float = 0.2,
+    relaxation_factor: float = 3.0,
+    local_size: bool = False,
+) -> ConformingMesh:
+    """Conform a background triangulation to the domain bounded by ``boundary`` (SPEC §2-3).
+
+    Shorthand for ``UniversalMesh(background, ...).conform(boundary)``; use
+    :class:`UniversalMesh` to conform one background to many domains.
+
+    Parameters
+    ----------
+    background
+        Degree-1 triangle mesh containing the closure of the domain, acute near Gamma;
+        distributed with shared-facet ghosts (see :mod:`dolfinx_universal.background`).
+    boundary
+        The domain (signs, closest points, normals).
+    R_r, alpha, eta, relaxation_factor, local_size
+        See :class:`UniversalMesh`.
+
+    Returns
+    -------
+    The conforming mesh and its maps back to the background.
+
+    Raises
+    ------
+    MeshingError
+        On every rank, when the domain cannot be meshed on this background; the message says
+        where and what to do.
+    """
+    um = UniversalMesh(
+        background, R_r=R_r, alpha=alpha, eta=eta, relaxation_factor=relaxation_factor,
+        local_size=local_size,
+    )
+    return um.conform(boundary)
+
+

@@ -1,0 +1,277 @@
+"""Curved universal meshes: the maps G_h, G~_h and their degree-k interpolants I_h, I~_h."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import lru_cache
+
+from mpi4py import MPI
+
+import basix
+import numpy as np
+import numpy.typing as npt
+from dolfinx import fem
+from dolfinx import mesh as dmesh
+
+from .conform import IMMERSED, ConformingMesh
+from .validation import collective_call, raise_collective, where
+
+__all__ = [
+    "MAPS",
+    "CurvedMesh",
+    "boundary_dof_data",
+    "curved_mesh",
+    "jacobian_ratio",
+    "reference_nodes",
+    "transfinite_map",
+]
+
+Float = npt.NDArray[np.float64]
+
+MAPS = ("I", "I~", "G", "G~")
+"""Map names. ``"I"``/``"G"`` interpolate the exactly conforming blend ``G_h``; ``"I~"``/``"G~"``
+interpolate ``G~_h`` (through the straight mesh). DOLFINx geometry is polynomial, so ``G`` is
+realised as its degree-q interpolant: ``"G"`` with a geometry degree above the space degree is
+the superparametric approximation of ``G_h``; with equal degrees it is ``I_h``."""
+
+
+@lru_cache(maxsize=16)
+def _element(degree: int) -> basix.finite_element.FiniteElement:
+    return basix.create_element(
+        basix.ElementFamily.P, basix.CellType.triangle, degree, basix.LagrangeVariant.gll_warped
+    )
+
+
+def reference_nodes(degree: int) -> Float:
+    """Barycentric coordinates of the degree-k GLL-warped Lagrange nodes, ``(ndofs, 3)``.
+
+    Column ``i`` is the coordinate of local vertex ``i``; rows follow DOLFINx's node order
+    (vertices, edges 0-2, interior).
+    """
+    p = _element(degree).points
+    return np.column_stack([1.0 - p.sum(axis=1), p])
+
+
+def transfinite_map(
+    lam: Float,
+    edge_u: Float,
+    edge_v: Float,
+    pi_u: Float,
+    pi_v: Float,
+    m_w: Float,
+    closest_point: Callable[[Float], Float],
+) -> Float:
+    """The transfinite blend of SPEC §4 at barycentric points of positively cut cells.
+
+    ``G(x) = [l_v pi(l_u a + (1-l_u) b) + l_u l_w pi_u] / (2 (1 - l_u))
+           + [l_u pi((1-l_v) a + l_v b) + l_v l_w pi_v] / (2 (1 - l_v)) + l_w m_w``
+    with ``(a, b)`` the edge end points: the background vertices ``(u, v)`` for ``G_h``, their
+    images ``(pi(u), pi(v))`` for ``G~_h``. Vertex limits are exact (no 0/0).
+
+    Parameters
+    ----------
+    lam
+        Barycentric coordinates ``(l_u, l_v, l_w)``, ``(m, p, 3)`` or ``(p, 3)``.
+    edge_u, edge_v
+        End points of the straight edge to project from, ``(m, 2)``.
+    pi_u, pi_v, m_w
+        Images of the vertices ``u, v`` (on Gamma) and ``w``, ``(m, 2)``.
+    closest_point
+        The projection onto Gamma, ``(n, 2) -> (n, 2)``.
+
+    Returns
+    -------
+    Images of the points, ``(m, p, 2)``.
+    """
+    m = len(edge_u)
+    lam = np.broadcast_to(lam, (m,) + np.shape(lam)[-2:])
+    lu, lv, lw = lam[..., 0:1], lam[..., 1:2], lam[..., 2:3]
+    a, b = edge_u[:, None, :], edge_v[:, None, :]
+    pu, pv, mw = pi_u[:, None, :], pi_v[:, None, :], m_w[:, None, :]
+    eps = 1e-14
+    at_u, at_v = (1.0 - lu) <= eps, (1.0 - lv) <= eps
+    # Points on the edge that need projecting: skip vertices and points with zero weight.
+    q1 = lu * a + (1.0 - lu) * b
+    q2 = (1.0 - lv) * a + lv * b
+    need1 = (lv > 0) & ~at_u
+    need2 = (lu > 0) & ~at_v
+    p1 = np.zeros_like(q1)
+    p2 = np.zeros_like(q2)
+    if need1.any():
+        p1[need1[..., 0]] = closest_point(q1[need1[..., 0]])
+    if need2.any():
+        p2[need2[..., 0]] = closest_point(q2[need2[..., 0]])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1 = (lv * p1 + lu * lw * pu) / (2.0 * (1.0 - lu))
+        t2 = (lu * p2 + lv * lw * pv) / (2.0 * (1.0 - lv))
+    g = np.where(at_u, 0.0, t1) + np.where(at_v, 0.0, t2) + lw * mw
+    g = np.where(at_u, pu, g)
+    return np.where(at_v, pv, g)
+
+
+def _cell_nodes(cm: ConformingMesh, degree: int, kind: str) -> Float:
+    """Images of the reference nodes of every local cell, ``(num_cells, ndofs, 2)``."""
+    cells = cm.cells
+    y = cm.x  # M_h images of the vertices
+    lam = reference_nodes(degree)
+    nodes = np.einsum("pi,cid->cpd", lam, y[cells])  # affine images
+    pc = np.flatnonzero(cm.positively_cut)
+    if len(pc) == 0:
+        return nodes
+    k = np.argmin(cm.sign[cells[pc]], axis=1)  # local index of the inside vertex w
+    order = np.column_stack([(k + 1) % 3, (k + 2) % 3, k])  # (u, v, w), orientation kept
+    rows = np.arange(len(pc))[:, None]
+    vid = cells[pc][rows, order]
+    lam_uvw = lam[:, order].transpose(1, 0, 2)  # (m, p, 3)
+    pu, pv, mw = y[vid[:, 0]], y[vid[:, 1]], y[vid[:, 2]]
+    if kind == "G":
+        a, b = cm.background_x[vid[:, 0]], cm.background_x[vid[:, 1]]
+    else:
+        a, b = pu, pv
+    nodes[pc] = transfinite_map(lam_uvw, a, b, pu, pv, mw, cm.boundary.closest_point)
+    return nodes
+
+
+def jacobian_ratio(nodes: Float, degree: int, resolution: int | None = None) -> Float:
+    """Smallest ratio ``det J / det J_affine`` over a dense lattice of each curved cell.
+
+    ``det J`` of a degree-k triangle is a polynomial of degree ``2(k-1)`` in the reference
+    coordinates. It is evaluated on the lattice with ``n = 4k`` subdivisions per edge
+    (``(n+1)(n+2)/2`` points, vertices and edges included): twice the polynomial's degree,
+    which resolves its variation; a negative minimum is proof of inversion.
+
+    Parameters
+    ----------
+    nodes
+        Node coordinates of each cell, ``(m, ndofs, 2)``.
+    degree
+        Geometry degree.
+    resolution
+        Subdivisions per edge (default ``4 * degree``).
+
+    Returns
+    -------
+    The minimum ratio for each cell, ``(m,)`` (1 for an affine cell).
+    """
+    n = resolution or 4 * degree
+    i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+    keep = i + j <= n
+    pts = np.column_stack([i[keep], j[keep]]).astype(np.float64) / n
+    dphi = _element(degree).tabulate(1, pts)[1:, :, :, 0]  # (2, npts, ndofs)
+    jac = np.einsum("cad,kpa->cpdk", nodes, dphi)  # (m, npts, 2 (x/y), 2 (d/dX, d/dY))
+    det = jac[..., 0, 0] * jac[..., 1, 1] - jac[..., 0, 1] * jac[..., 1, 0]
+    p = nodes[:, :3]
+    det0 = (p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 2, 0] - p[:, 0, 0]) * (
+        p[:, 1, 1] - p[:, 0, 1]
+    )
+    return (det / det0[:, None]).min(axis=1)
+
+
+@dataclass
+class CurvedMesh:
+    """A degree-k conforming mesh on the topology of a straight conforming mesh."""
+
+    mesh: dmesh.Mesh
+    """The curved mesh (Lagrange coordinate element of degree ``degree``, GLL-warped nodes)."""
+    facet_tags: dmesh.MeshTags
+    """:data:`~dolfinx_universal.conform.IMMERSED` / :data:`~dolfinx_universal.conform.OUTER`."""
+    conforming: ConformingMesh
+    degree: int
+    map: str
+    min_jacobian_ratio: float
+    """Global minimum of ``det J / det J_straight`` over the curved cells."""
+
+
+def curved_mesh(
+    cm: ConformingMesh, degree: int, map: str = "I", *, min_ratio: float = 0.0
+) -> CurvedMesh:
+    """Degree-k DOLFINx mesh whose nodes are the images of the Lagrange nodes under a curved map.
+
+    Only positively cut cells are curved (their positive edge follows Gamma through the
+    closest-point projection); every other cell is the affine image of its ``M_h`` vertices.
+    Nodes on Gamma lie exactly on Gamma. Collective.
+
+    Parameters
+    ----------
+    cm
+        Straight conforming mesh from :func:`~dolfinx_universal.conform.conform`.
+    degree
+        Geometry degree ``q >= 1``. ``degree = 1`` returns a copy of the straight mesh.
+    map
+        One of :data:`MAPS`.
+    min_ratio
+        Smallest allowed ``det J / det J_straight`` in a curved cell (0: only inversion is
+        an error).
+
+    Raises
+    ------
+    MeshingError
+        If a curved cell is inverted (its Jacobian determinant changes sign).
+    """
+    if map not in MAPS:
+        raise ValueError(f"unknown map {map!r}: choose one of {MAPS}")
+    if int(degree) != degree or degree < 1:
+        raise ValueError(f"geometry degree must be an integer >= 1, got {degree}")
+    kind = "G" if map in ("I", "G") else "G~"
+    ce = fem.coordinate_element(
+        dmesh.CellType.triangle, degree, basix.LagrangeVariant.gll_warped
+    )
+    msh = fem.interpolate_geometry(cm.mesh, ce)
+    nodes = collective_call(msh.comm, "the curved map", _cell_nodes, cm, degree, kind)
+    dofmap = msh.geometry.dofmaps[0]
+    msh.geometry.x[dofmap.ravel(), :2] = nodes.reshape(-1, 2)
+
+    pc = np.flatnonzero(cm.positively_cut)
+    ratio = jacobian_ratio(nodes[pc], degree) if degree > 1 and len(pc) else np.ones(0)
+    bad = ratio <= min_ratio
+    problems = []
+    if bad.any():
+        problems.append(
+            f"{int(bad.sum())} curved triangles are inverted (det J / det J_straight down to "
+            f"{ratio.min():.3g}) near {where(nodes[pc[bad]].mean(axis=1))}: the background is "
+            "too coarse for the boundary's curvature there; refine near those points"
+        )
+    raise_collective(msh.comm, problems)
+    local_min = float(ratio.min()) if len(ratio) else 1.0
+    tags = dmesh.meshtags(msh, 1, cm.facet_tags.indices, cm.facet_tags.values)
+    return CurvedMesh(
+        mesh=msh,
+        facet_tags=tags,
+        conforming=cm,
+        degree=int(degree),
+        map=map,
+        min_jacobian_ratio=msh.comm.allreduce(local_min, op=MPI.MIN),
+    )
+
+
+def boundary_dof_data(
+    V: fem.FunctionSpace, curved: CurvedMesh, tag: int = IMMERSED
+) -> tuple[npt.NDArray[np.int32], Float, Float, Float]:
+    """Boundary degrees of freedom of ``V`` on a tagged boundary, with the true geometry there.
+
+    Parameters
+    ----------
+    V
+        A (scalar, or blocked vector) Lagrange space on ``curved.mesh``.
+    curved
+        The curved mesh.
+    tag
+        Facet tag (default the immersed boundary).
+
+    Returns
+    -------
+    dofs
+        Process-local dof (block) indices on the tagged facets, owned and ghost, ``(n,)``.
+    closest
+        Closest points of Gamma to the dof coordinates, ``(n, 2)`` (the dofs lie on Gamma
+        when the space and geometry degrees agree).
+    normal, tangent
+        Unit outward normal and tangent of Gamma there, ``(n, 2)``.
+    """
+    facets = curved.facet_tags.find(tag)
+    dofs = fem.locate_dofs_topological(V, 1, facets)
+    xd = V.tabulate_dof_coordinates()[dofs, :2]
+    boundary = curved.conforming.boundary
+    y = boundary.closest_point(xd) if len(dofs) else np.zeros((0, 2))
+    return dofs, y, boundary.normal(y), boundary.tangent(y)

@@ -1,0 +1,57 @@
+"""Shared fixtures: MPI-safe temporary directories and a runner for scripts under mpirun."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import dolfinx_universal  # noqa: F401  (initialises the DOLFINx wheel before dolfinx imports)
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def mpirun() -> str | None:
+    """The mpirun that belongs to this Python (the mpich wheel's), else the one on PATH."""
+    local = Path(sys.executable).parent / "mpirun"
+    return str(local) if local.exists() else shutil.which("mpirun")
+
+
+def run_mpi(nprocs: int, args: list[str], timeout: float = 300) -> subprocess.CompletedProcess:
+    """Run ``python args...`` on ``nprocs`` ranks (plain python when ``nprocs == 1``)."""
+    cmd = [sys.executable, *args]
+    if nprocs > 1:
+        exe = mpirun()
+        if exe is None:
+            pytest.skip("mpirun not found")
+        cmd = [exe, "-n", str(nprocs), *cmd]
+    env = dict(os.environ, OMP_NUM_THREADS="1", MPLBACKEND="Agg")
+    # Open MPI (some DOLFINx images) refuses to run as root without these.
+    env.update(OMPI_ALLOW_RUN_AS_ROOT="1", OMPI_ALLOW_RUN_AS_ROOT_CONFIRM="1")
+    proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=timeout)
+    if proc.returncode != 0:
+        raise AssertionError(
+            f"{' '.join(cmd)} failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n"
+            f"{proc.stderr[-5000:]}"
+        )
+    return proc
+
+
+def run_mpi_json(nprocs: int, script: str, out: Path, *args: str) -> dict:
+    """Run ``tests/mpi/<script>`` writing JSON to ``out`` and return what it wrote."""
+    run_mpi(nprocs, [str(ROOT / "tests" / "mpi" / script), str(out), *args])
+    return json.loads(out.read_text())
+
+
+@pytest.fixture
+def mpi_tmp_path(tmp_path_factory):
+    """A temporary directory shared by all ranks of this process's communicator."""
+    from mpi4py import MPI
+
+    comm = MPI.COMM_WORLD
+    path = str(tmp_path_factory.mktemp("mpi")) if comm.rank == 0 else None
+    return Path(comm.bcast(path, root=0))
