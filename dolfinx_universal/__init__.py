@@ -19,8 +19,10 @@ from .boundaries import (
     RigidMotion,
 )
 from .classify import conditioning_angle, positive_edges, positively_cut
-from .conform import IMMERSED, OUTER, ConformingMesh, conform
+from .conform import IMMERSED, OUTER, ConformingMesh, UniversalMesh, conform
+from .constraints import SlipConstraint
 from .curved import CurvedMesh, boundary_dof_data, curved_mesh
+from .moving import MovingDomain
 from .quality import quality_report
 from .validation import MeshingError
 
@@ -40,9 +42,12 @@ __all__ = [
     "Ellipse",
     "ImplicitCurve",
     "MeshingError",
+    "MovingDomain",
     "PeriodicSpline",
     "PolarCurve",
     "RigidMotion",
+    "SlipConstraint",
+    "UniversalMesh",
     "boundary_dof_data",
     "conditioning_angle",
     "conform",

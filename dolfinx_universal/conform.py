@@ -24,7 +24,13 @@ from .classify import (
     signed_areas,
     straight_map,
 )
-from .validation import collective_call, raise_collective, vertex_reduce, where
+from .validation import (
+    MeshingError,
+    collective_call,
+    raise_collective,
+    vertex_reduce,
+    where,
+)
 
 if TYPE_CHECKING:
     from .boundaries import Boundary
@@ -300,6 +306,11 @@ class UniversalMesh:
         on_pe = pe_count > 0
         kept = kept_cells(s, c2v)
         in_kept = _incidence(imv, owned[kept[:nco]], nv) > 0
+        if comm.allreduce(int(np.count_nonzero(kept[:nco]))) == 0:
+            raise MeshingError(
+                "no background vertex lies inside the domain: the domain is outside the "
+                "background mesh or smaller than its triangles; move or refine the background"
+            )
         problems = self._check_classification(
             xp, s, phi, pc_owned, u, v, w, pe_count, in_kept, kept
         )

@@ -23,6 +23,7 @@ __all__ = [
     "boundary_dof_data",
     "curved_mesh",
     "jacobian_ratio",
+    "map_nodes",
     "reference_nodes",
     "transfinite_map",
 ]
@@ -110,27 +111,62 @@ def transfinite_map(
     return np.where(at_v, pv, g)
 
 
-def _cell_nodes(cm: ConformingMesh, degree: int, kind: str) -> Float:
-    """Images of the reference nodes of every local cell, ``(num_cells, ndofs, 2)``."""
-    cells = cm.cells
-    y = cm.x  # M_h images of the vertices
+def map_nodes(
+    cells: npt.NDArray,
+    y: Float,
+    x_background: Float,
+    sign: Float,
+    degree: int,
+    kind: str,
+    closest_point: Callable[[Float], Float],
+) -> Float:
+    """Images of the degree-k reference nodes of triangles under ``G_h`` or ``G~_h``.
+
+    Parameters
+    ----------
+    cells
+        Triangles ``(m, 3)`` (process-local vertex indices).
+    y
+        ``M_h`` images of the vertices ``(num_vertices, 2)``.
+    x_background
+        Background positions of the vertices ``(num_vertices, 2)``.
+    sign
+        Vertex signs; cells with exactly one ``-1`` are positively cut and get curved.
+    degree
+        Lagrange degree of the nodes.
+    kind
+        ``"G"`` (exactly conforming blend) or ``"G~"`` (through the straight mesh).
+    closest_point
+        Projection onto Gamma.
+
+    Returns
+    -------
+    Node coordinates ``(m, ndofs, 2)`` in DOLFINx's node order.
+    """
     lam = reference_nodes(degree)
     nodes = np.einsum("pi,cid->cpd", lam, y[cells])  # affine images
-    pc = np.flatnonzero(cm.positively_cut)
+    pc = np.flatnonzero((sign[cells] > 0).sum(axis=1) == 2)
     if len(pc) == 0:
         return nodes
-    k = np.argmin(cm.sign[cells[pc]], axis=1)  # local index of the inside vertex w
+    k = np.argmin(sign[cells[pc]], axis=1)  # local index of the inside vertex w
     order = np.column_stack([(k + 1) % 3, (k + 2) % 3, k])  # (u, v, w), orientation kept
     rows = np.arange(len(pc))[:, None]
     vid = cells[pc][rows, order]
     lam_uvw = lam[:, order].transpose(1, 0, 2)  # (m, p, 3)
     pu, pv, mw = y[vid[:, 0]], y[vid[:, 1]], y[vid[:, 2]]
     if kind == "G":
-        a, b = cm.background_x[vid[:, 0]], cm.background_x[vid[:, 1]]
+        a, b = x_background[vid[:, 0]], x_background[vid[:, 1]]
     else:
         a, b = pu, pv
-    nodes[pc] = transfinite_map(lam_uvw, a, b, pu, pv, mw, cm.boundary.closest_point)
+    nodes[pc] = transfinite_map(lam_uvw, a, b, pu, pv, mw, closest_point)
     return nodes
+
+
+def _cell_nodes(cm: ConformingMesh, degree: int, kind: str) -> Float:
+    """Images of the reference nodes of every local cell of ``cm``, ``(num_cells, ndofs, 2)``."""
+    return map_nodes(
+        cm.cells, cm.x, cm.background_x, cm.sign, degree, kind, cm.boundary.closest_point
+    )
 
 
 def jacobian_ratio(nodes: Float, degree: int, resolution: int | None = None) -> Float:

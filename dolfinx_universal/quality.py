@@ -14,7 +14,7 @@ from .classify import interior_angles, positively_cut, signed_areas
 if TYPE_CHECKING:
     from .conform import ConformingMesh
 
-__all__ = ["edge_ratio", "quality_report", "radius_ratio"]
+__all__ = ["cell_quality", "edge_ratio", "quality_report", "radius_ratio"]
 
 
 def _edges(x: npt.NDArray[np.float64], cells: npt.NDArray) -> npt.NDArray[np.float64]:
@@ -49,14 +49,35 @@ def quality_report(cm: ConformingMesh) -> dict[str, float | int]:
     over triangles with 3, 2 and 1 vertices inside the domain; 0 when there are none),
     ``n_inverted`` and ``min_area_ratio`` (conforming over background area).
     """
-    comm = cm.mesh.comm
     nco = cm.mesh.topology.index_map(2).size_local
-    cells = cm.cells[:nco]
-    x = cm.x
+    return cell_quality(cm.mesh.comm, cm.x, cm.background_x, cm.cells[:nco], cm.sign, cm.moved)
+
+
+def cell_quality(
+    comm: MPI.Comm,
+    x: npt.NDArray[np.float64],
+    background_x: npt.NDArray[np.float64],
+    cells: npt.NDArray,
+    sign: npt.NDArray[np.float64],
+    moved: npt.NDArray[np.bool_],
+) -> dict[str, float | int]:
+    """The figures of :func:`quality_report` for given (owned) triangles (collective).
+
+    Parameters
+    ----------
+    comm
+        Communicator to reduce over.
+    x, background_x
+        Conforming and background vertex positions ``(num_vertices, 2)``.
+    cells
+        Owned triangles ``(m, 3)`` to report on.
+    sign, moved
+        Vertex signs and moved flags ``(num_vertices,)``.
+    """
     ang = np.degrees(interior_angles(x, cells))
-    inside = (cm.sign[cells] < 0).sum(axis=1)
+    inside = (sign[cells] < 0).sum(axis=1)
     Q = edge_ratio(x, cells)
-    area0 = signed_areas(cm.background_x, cells)
+    area0 = signed_areas(background_x, cells)
     area1 = signed_areas(x, cells)
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = area1 / area0
@@ -66,8 +87,8 @@ def quality_report(cm: ConformingMesh) -> dict[str, float | int]:
 
     report: dict[str, float | int] = {
         "n_cells": red(len(cells), MPI.SUM, 0),
-        "n_positively_cut": red(int(positively_cut(cm.sign, cells).sum()), MPI.SUM, 0),
-        "n_unaltered": red(int((~cm.moved[cells].any(axis=1)).sum()), MPI.SUM, 0),
+        "n_positively_cut": red(int(positively_cut(sign, cells).sum()), MPI.SUM, 0),
+        "n_unaltered": red(int((~moved[cells].any(axis=1)).sum()), MPI.SUM, 0),
         "theta_min_deg": red(float(ang.min()) if len(cells) else 180.0, MPI.MIN, 180.0),
         "theta_max_deg": red(float(ang.max()) if len(cells) else 0.0, MPI.MAX, 0.0),
         "q_max": red(float(radius_ratio(x, cells).max()) if len(cells) else 0.0, MPI.MAX, 0.0),

@@ -9,8 +9,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-import dolfinx_universal  # noqa: F401  (initialises the DOLFINx wheel before dolfinx imports)
 import pytest
+
+import dolfinx_universal  # noqa: F401  (initialises the DOLFINx wheel before dolfinx imports)
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+
 from dolfinx_universal import classify
 from dolfinx_universal.background import equilateral_triangulation
 

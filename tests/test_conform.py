@@ -4,13 +4,14 @@ from __future__ import annotations
 
 from mpi4py import MPI
 
-import dolfinx_universal as du
 import numpy as np
 import pytest
 import ufl
 from conftest import run_mpi, run_mpi_json
 from dolfinx import fem
 from dolfinx import mesh as dmesh
+
+import dolfinx_universal as du
 from dolfinx_universal.background import create_background_mesh
 from dolfinx_universal.classify import signed_areas
 

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 from mpi4py import MPI
 
-import dolfinx_universal as du
 import numpy as np
 import pytest
 import ufl
 from dolfinx import fem
 from dolfinx.fem.petsc import LinearProblem
+
+import dolfinx_universal as du
 from dolfinx_universal.curved import _cell_nodes, jacobian_ratio, reference_nodes, transfinite_map
 
 comm = MPI.COMM_WORLD

@@ -5,10 +5,11 @@ import sys
 
 from mpi4py import MPI
 
-import dolfinx_universal as du
 import numpy as np
 import ufl
 from dolfinx import fem
+
+import dolfinx_universal as du
 
 
 def sorted_points(msh) -> list:

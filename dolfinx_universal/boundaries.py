@@ -1,0 +1,1206 @@
+"""Immersed boundaries Gamma of planar domains: signs, closest points, distances and normals."""
+
+from __future__ import annotations
+
+import abc
+import json
+import warnings
+from collections.abc import Callable, Sequence
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+import numpy.typing as npt
+from scipy import ndimage
+from scipy.interpolate import CubicSpline
+from scipy.spatial import cKDTree
+
+__all__ = [
+    "Boundary",
+    "Circle",
+    "Domain",
+    "Ellipse",
+    "ImplicitCurve",
+    "ParametricCurve",
+    "PeriodicSpline",
+    "PolarCurve",
+    "RigidMotion",
+]
+
+Float = npt.NDArray[np.float64]
+Bool = npt.NDArray[np.bool_]
+Int = npt.NDArray[np.intp]
+ArrayFn = Callable[[Float], Float]
+
+_EPS = float(np.finfo(np.float64).eps)
+_GRID_CELLS = 1024  # cells of the sign/distance acceleration grid along the bbox's longer side
+
+
+# ----------------------------------------------------------------------------- helpers
+def _as_points(x: npt.ArrayLike, name: str = "x") -> Float:
+    """``x`` as a contiguous float64 array ``(n, 2)`` (first two columns), checked finite."""
+    a = np.asarray(x, dtype=np.float64)
+    if a.ndim != 2 or a.shape[1] not in (2, 3):
+        raise ValueError(f"{name} must have shape (n, 2) or (n, 3), got {a.shape}")
+    a = np.ascontiguousarray(a[:, :2])
+    bad = ~np.isfinite(a).all(axis=1)
+    if bad.any():
+        i = int(np.argmax(bad))
+        kind = "NaN" if np.isnan(a[i]).any() else "inf"
+        raise ValueError(f"{name} contains {kind} at index {i} ({name}={a[i].tolist()})")
+    return a
+
+
+def _vector(v: npt.ArrayLike, name: str) -> Float:
+    """A finite 2-vector."""
+    a = np.asarray(v, dtype=np.float64).reshape(-1)[:2]
+    if a.shape != (2,) or not np.isfinite(a).all():
+        raise ValueError(f"{name} must be two finite numbers, got {v!r}")
+    return a
+
+
+def _positive(value: float, name: str) -> float:
+    value = float(value)
+    if not (np.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive finite number, got {value}")
+    return value
+
+
+def _call(fn: ArrayFn, arg: Float, shape: tuple[int, ...]) -> Float:
+    """``fn(arg)`` as a float64 array of the given shape (scalars are broadcast)."""
+    return np.broadcast_to(np.asarray(fn(arg), dtype=np.float64), shape).copy()
+
+
+def _norm(v: Float) -> Float:
+    return np.sqrt(v[..., 0] ** 2 + v[..., 1] ** 2)
+
+
+def _rotate(v: Float, c: float, s: float) -> Float:
+    """Rows of ``v (n, 2)`` rotated by the angle of cosine ``c`` and sine ``s``."""
+    return np.column_stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]])
+
+
+def _rot90(v: Float) -> Float:
+    return np.column_stack([-v[:, 1], v[:, 0]])
+
+
+def _unit(v: Float) -> Float:
+    return v / _norm(v)[:, None]
+
+
+def _chords(p: Float) -> Float:
+    """Edge lengths of the closed polyline ``p (m, 2)``, shape ``(m,)``."""
+    return _norm(np.roll(p, -1, axis=0) - p)
+
+
+def _cross(u: Float, v: Float) -> Float:
+    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+
+
+def _signed_area(p: Float) -> float:
+    q = np.roll(p, -1, axis=0)
+    return 0.5 * float((p[:, 0] * q[:, 1] - q[:, 0] * p[:, 1]).sum())
+
+
+def _neighbours(lengths: Sequence[int]) -> tuple[Int, Int]:
+    """Previous and next index of every point of closed loops stored one after the other."""
+    n = np.asarray(lengths, dtype=np.intp)
+    start, size = np.repeat(np.cumsum(n) - n, n), np.repeat(n, n)
+    i = np.arange(n.sum()) - start
+    return start + (i - 1) % size, start + (i + 1) % size
+
+
+def _resample(loop: Float, n: int) -> Float:
+    """``n`` points equally spaced in arc length along the closed polyline ``loop``."""
+    closed = np.vstack([loop, loop[:1]])
+    s = np.concatenate([[0.0], np.cumsum(_chords(loop))])
+    u = np.arange(n) * (s[-1] / n)
+    return np.column_stack([np.interp(u, s, closed[:, 0]), np.interp(u, s, closed[:, 1])])
+
+
+def _split(n: int, weights: Sequence[float]) -> list[int]:
+    """``n`` split proportionally to ``weights`` (largest remainders)."""
+    w = np.asarray(weights, dtype=np.float64)
+    q = n * w / w.sum()
+    k = np.floor(q).astype(int)
+    k[np.argsort(k - q)[: n - k.sum()]] += 1
+    return k.tolist()
+
+
+def _crossing_sign(p: Float, loops: Sequence[Float]) -> Float:
+    """Even-odd ray-casting test: -1 for points of ``p (m, 2)`` enclosed by the polylines."""
+    a = np.concatenate(loops)
+    b = np.concatenate([np.roll(q, -1, axis=0) for q in loops])
+    out = np.empty(len(p))
+    for c in range(0, len(p), 64):
+        px, py = p[c : c + 64, :1], p[c : c + 64, 1:]
+        cut = (a[:, 1] > py) != (b[:, 1] > py)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xc = a[:, 0] + (py - a[:, 1]) * (b[:, 0] - a[:, 0]) / (b[:, 1] - a[:, 1])
+        out[c : c + 64] = np.where((cut & (px < xc)).sum(axis=1) % 2 == 1, -1.0, 1.0)
+    return out
+
+
+def _candidates(
+    x: Float, tree: cKDTree, pts: Float, prev: Int, nxt: Int, reach: float
+) -> tuple[Int, Int]:
+    """Start samples for the exact projection of every point of ``x``.
+
+    Returns pairs ``(point index, sample index)``: the samples that are discrete local minima
+    of ``|x - sample|`` along their loop, among those within ``d_min + reach`` of ``x``
+    (``d_min``: nearest sample distance). With ``reach`` at least half the longest arc between
+    consecutive samples, this includes a sample next to the interval of the global closest
+    point (the sample nearest to it is within ``d + reach``; if the distance is unimodal over
+    neighbouring intervals, the discrete minimum is that sample or its neighbour). The k
+    nearest samples settle most points; the rest (far from Gamma) are searched exhaustively.
+    """
+    ps: list[Int] = []
+    ss: list[Int] = []
+    todo = np.arange(len(x))
+    m = len(pts)
+    for k in (min(16, m), min(64, m)):
+        if not todo.size:
+            break
+        d, j = tree.query(x[todo], k=k)  # distances sorted: column 0 is the nearest
+        lim = d[:, :1] + reach
+        done = (d[:, -1] > lim[:, 0]) | (k == m)
+        r, c = np.nonzero((d <= lim) & done[:, None])
+        jj, dd, xr = j[r, c], d[r, c], x[todo[r]]
+        keep = (c == 0) | (dd <= _norm(xr - pts[prev[jj]])) & (dd <= _norm(xr - pts[nxt[jj]]))
+        ps.append(todo[r[keep]])
+        ss.append(jj[keep])
+        todo = todo[~done]
+    for chunk in np.array_split(todo, todo.size * m // 1_000_000 + 1) if todo.size else []:
+        d = _norm(x[chunk][:, None, :] - pts[None])
+        lim = d.min(axis=1, keepdims=True) + reach
+        cand = (d <= lim) & (d <= d[:, prev]) & (d <= d[:, nxt])
+        cand[np.arange(len(chunk)), d.argmin(axis=1)] = True
+        r, c = np.nonzero(cand)
+        ps.append(chunk[r])
+        ss.append(c)
+    return np.concatenate(ps), np.concatenate(ss)
+
+
+def _best(pidx: Int, dist: Float) -> Int:
+    """Index of the pair with the smallest ``dist`` for each point ``0, 1, ...`` of ``pidx``."""
+    if len(pidx) == pidx.max(initial=-1) + 1:  # one pair per point
+        return np.argsort(pidx, kind="stable")
+    order = np.lexsort((dist, pidx))
+    p = pidx[order]
+    first = np.ones(len(p), dtype=bool)
+    first[1:] = p[1:] != p[:-1]
+    return order[first]
+
+
+def _bracketed_newton(
+    fn: Callable[[Float, Int], tuple[Float, Float]],
+    t: Float,
+    lo: Float,
+    hi: Float,
+    tol: float,
+    maxiter: int = 100,
+) -> Float:
+    """Vectorised safeguarded Newton method for roots of ``g`` with ``g(lo) <= 0 <= g(hi)``.
+
+    ``fn(t, idx)`` returns ``g`` and ``g'`` at ``t`` for the problems ``idx``. A step that
+    leaves the bracket or does not halve the previous one is replaced by a bisection
+    (``rtsafe``), so every problem converges; converged problems drop out.
+    """
+    t, lo, hi = t.copy(), lo.copy(), hi.copy()
+    dxold = hi - lo
+    act = np.arange(len(t))
+    for _ in range(maxiter):
+        if not act.size:
+            break
+        ta = t[act]
+        g, dg = fn(ta, act)
+        neg = g < 0
+        la, ha = np.where(neg, ta, lo[act]), np.where(neg, hi[act], ta)
+        lo[act], hi[act] = la, ha
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            tn = ta - g / dg
+            ok = (dg > 0) & (tn >= la) & (tn <= ha) & (np.abs(2 * g) <= np.abs(dxold[act] * dg))
+        tn = np.where(g == 0, ta, np.where(ok, tn, 0.5 * (la + ha)))
+        dxold[act] = np.abs(tn - ta)
+        t[act] = tn
+        act = act[(np.abs(tn - ta) > tol) & (ha - la > tol)]
+    return t
+
+
+class _Grid:
+    """Uniform grid over a boundary's bounding box, to classify points in O(1).
+
+    Cells within one cell of a dense sample of Gamma are *marked* (code 0); every other cell
+    lies in a connected region free of Gamma, whose sign (code -1 or +1) is that of one
+    representative centre by ray casting against the dense polyline (exact: the centre is
+    more than a cell away from Gamma, the polyline within a tiny fraction of a cell).
+    ``lb`` is a lower bound of the distance from the cell to Gamma.
+    """
+
+    def __init__(self, loops_at: Callable[[float], list[Float]], bbox: Float) -> None:
+        lo, hi = bbox
+        self.h = h = float(max((hi - lo).max(), 1e-300)) / _GRID_CELLS
+        loops = loops_at(h / 3)  # every point of Gamma is within h/6 of a sample
+        pts = np.concatenate(loops)
+        self.box = bbox
+        self.origin = lo - 3 * h
+        self.shape = np.ceil((hi - lo) / h).astype(np.intp) + 7
+        ij = np.floor((pts - self.origin) / h).astype(np.intp)
+        marked = np.zeros(tuple(self.shape), dtype=bool)
+        for di in (-1, 0, 1):
+            for dj in (-1, 0, 1):
+                marked[ij[:, 0] + di, ij[:, 1] + dj] = True
+        free = ~marked
+        label, nlabel = ndimage.label(free)
+        first = np.searchsorted(np.maximum.accumulate(label.ravel()), np.arange(1, nlabel + 1))
+        centres = self.origin + (np.column_stack(np.unravel_index(first, label.shape)) + 0.5) * h
+        rep = np.concatenate([[0.0], _crossing_sign(centres, loops)]).astype(np.int8)
+        self.code = rep[label]
+        lb = (ndimage.distance_transform_edt(free) - np.sqrt(2.0)) * h
+        self.lb = (np.maximum(lb, 0.0) * (1 - 1e-6)).astype(np.float32)
+        self.tree = cKDTree(pts)
+        self.spacing = max(float(_chords(q).max()) for q in loops)
+
+    def _cells(self, x: Float) -> tuple[Bool, Int]:
+        """Mask of the points in the grid, and their flat cell indices (0 outside)."""
+        u = (x - self.origin) * (1.0 / self.h)
+        inside = (u >= 0).all(axis=1) & (u[:, 0] < self.shape[0]) & (u[:, 1] < self.shape[1])
+        with np.errstate(invalid="ignore"):
+            k = u[:, 0].astype(np.intp) * self.shape[1] + u[:, 1].astype(np.intp)
+        return inside, np.where(inside, k, 0)
+
+    def sign_code(self, x: Float) -> Float:
+        """-1 or +1 where the sign is known, 0 where it must be computed exactly."""
+        inside, k = self._cells(x)
+        return np.where(inside, self.code.ravel()[k], 1).astype(np.float64)
+
+    def lower_bound(self, x: Float) -> Float:
+        """Lower bound of the distance to Gamma, shape ``(n,)``."""
+        inside, k = self._cells(x)
+        out = self.lb.ravel()[k].astype(np.float64)
+        xo = x[~inside]
+        out[~inside] = _norm(np.maximum(np.maximum(self.box[0] - xo, xo - self.box[1]), 0.0))
+        return out
+
+
+# ----------------------------------------------------------------------------- interface
+class Boundary(abc.ABC):
+    """The boundary Gamma (one or several closed C2 curves) of an open planar domain Omega.
+
+    Points are arrays ``(n, 2)`` or ``(n, 3)`` (only the first two columns are used); results
+    are float64 arrays ``(n,)`` or ``(n, 2)``. Points on Gamma are outside (sign +1).
+    """
+
+    @abc.abstractmethod
+    def sign(self, x: npt.ArrayLike) -> Float:
+        """-1.0 for points of ``x (n, 2)`` in Omega, +1.0 otherwise (on Gamma too), ``(n,)``."""
+
+    @abc.abstractmethod
+    def closest_point(self, x: npt.ArrayLike) -> Float:
+        """Closest points ``pi(x)`` of Gamma to the points ``x (n, 2)``, shape ``(n, 2)``."""
+
+    @abc.abstractmethod
+    def normal(self, y: npt.ArrayLike) -> Float:
+        """Unit outward normals of Omega at ``pi(y)`` for points ``y (n, 2)``, ``(n, 2)``."""
+
+    @abc.abstractmethod
+    def bounding_box(self) -> Float:
+        """Box ``[[xmin, ymin], [xmax, ymax]]`` containing Gamma (possibly slightly larger)."""
+
+    @abc.abstractmethod
+    def sample(self, n: int) -> Float:
+        """``n`` roughly equally spaced points of Gamma, shape ``(n, 2)``."""
+
+    @abc.abstractmethod
+    def min_radius_of_curvature(self) -> float:
+        """Smallest radius of curvature of Gamma (``inf`` when straight)."""
+
+    def project(self, x: npt.ArrayLike) -> tuple[Float, Float]:
+        """Signed distances ``phi (n,)`` and closest points ``pi(x) (n, 2)`` of ``x (n, 2)``.
+
+        ``phi = sign(x) |x - pi(x)|``, negative in Omega, from a single projection.
+        """
+        x = _as_points(x)
+        y = self.closest_point(x)
+        return self.sign(x) * _norm(x - y), y
+
+    def signed_distance(self, x: npt.ArrayLike) -> Float:
+        """Signed distance ``phi (n,)`` to Gamma of the points ``x (n, 2)`` (< 0 in Omega)."""
+        return self.project(x)[0]
+
+    def tangent(self, y: npt.ArrayLike) -> Float:
+        """Unit tangents ``(-n_y, n_x)`` at ``pi(y)``, shape ``(n, 2)``: Omega on their left."""
+        return _rot90(self.normal(y))
+
+    def near(self, x: npt.ArrayLike, distance: float) -> Bool:
+        """Mask ``(n,)`` of a superset of the points of ``x (n, 2)`` within ``distance`` of Gamma.
+
+        Points more than about ``distance`` + one sample spacing away are excluded: a grid
+        lower bound of the distance discards most points, the nearest dense sample of Gamma
+        (within ``distance + spacing`` for every point within ``distance``) settles the rest.
+        """
+        x = _as_points(x)
+        d = float(distance)
+        if not d >= 0 or not np.isfinite(d):
+            raise ValueError(f"distance must be a finite number >= 0, got {distance}")
+        mask = self._lower_bound(x) <= d
+        if mask.any():
+            g = self._grid
+            dist = g.tree.query(x[mask], distance_upper_bound=(d + g.spacing) * (1 + 1e-12))[0]
+            mask[mask] = np.isfinite(dist)
+        return mask
+
+    # Private hooks of the acceleration grid, overridden where cheaper or not applicable.
+    def _loops(self, spacing: float) -> list[Float]:
+        """Ordered dense samples of each closed curve of Gamma, at most ``spacing`` apart."""
+        n = 1024
+        while True:
+            p = self.sample(n)
+            longest = float(_chords(p).max())
+            if longest <= spacing:
+                return [p]
+            n = int(np.ceil(n * longest / spacing * 1.1))
+
+    def _length(self) -> float:
+        """Length of Gamma (approximate)."""
+        return float(sum(_chords(q).sum() for q in self._loops(np.inf)))
+
+    def _lower_bound(self, x: Float) -> Float:
+        """Cheap lower bound of the distance from ``x (n, 2)`` to Gamma, shape ``(n,)``."""
+        return self._grid.lower_bound(x)
+
+    @cached_property
+    def _grid(self) -> _Grid:
+        return _Grid(self._loops, np.asarray(self.bounding_box(), dtype=np.float64))
+
+
+# ----------------------------------------------------------------------------- conics
+class Circle(Boundary):
+    """Omega = the open disc of the given ``center`` and ``radius``; all in closed form."""
+
+    def __init__(self, center: npt.ArrayLike, radius: float) -> None:
+        self.center = _vector(center, "center")
+        self.radius = _positive(radius, "radius")
+
+    def sign(self, x: npt.ArrayLike) -> Float:
+        d = _as_points(x) - self.center
+        return np.where((d * d).sum(axis=1) < self.radius**2, -1.0, 1.0)
+
+    def _direction(self, x: npt.ArrayLike) -> Float:
+        d = _as_points(x) - self.center
+        r = _norm(d)
+        u = np.tile([1.0, 0.0], (len(d), 1))  # the centre projects onto c + (R, 0)
+        pos = r > 0
+        u[pos] = d[pos] / r[pos, None]
+        return u
+
+    def closest_point(self, x: npt.ArrayLike) -> Float:
+        return self.center + self.radius * self._direction(x)
+
+    def normal(self, y: npt.ArrayLike) -> Float:
+        return self._direction(y)
+
+    def near(self, x: npt.ArrayLike, distance: float) -> Bool:
+        return self._lower_bound(_as_points(x)) <= float(distance)
+
+    def _lower_bound(self, x: Float) -> Float:
+        return np.abs(_norm(x - self.center) - self.radius)
+
+    def bounding_box(self) -> Float:
+        r = self.radius * (1 + 4 * _EPS)
+        return np.array([self.center - r, self.center + r])
+
+    def sample(self, n: int) -> Float:
+        t = np.arange(n) * (2 * np.pi / max(n, 1))
+        return self.center + self.radius * np.column_stack([np.cos(t), np.sin(t)])
+
+    def min_radius_of_curvature(self) -> float:
+        return self.radius
+
+    def _length(self) -> float:
+        return 2 * np.pi * self.radius
+
+
+class Ellipse(Boundary):
+    """Omega = the open ellipse of semi-axes ``a`` (along the rotated x axis) and ``b``.
+
+    The ellipse is rotated by ``angle`` radians about ``center``. The closest point is found by
+    a bracketed Newton method on the angular parameter in the quadrant of the point (where
+    it is the unique stationary point), so it is global and exact for every point.
+    """
+
+    def __init__(self, center: npt.ArrayLike, a: float, b: float, angle: float = 0.0) -> None:
+        self.center = _vector(center, "center")
+        self.a, self.b = _positive(a, "a"), _positive(b, "b")
+        self.angle = float(angle)
+        self._cs = np.cos(self.angle), np.sin(self.angle)
+
+    def _local(self, x: npt.ArrayLike) -> Float:
+        return _rotate(_as_points(x) - self.center, self._cs[0], -self._cs[1])
+
+    def sign(self, x: npt.ArrayLike) -> Float:
+        p = self._local(x)
+        return np.where((p[:, 0] / self.a) ** 2 + (p[:, 1] / self.b) ** 2 < 1, -1.0, 1.0)
+
+    def _parameter(self, x: npt.ArrayLike) -> Float:
+        """Angular parameter ``t`` of the closest point ``(a cos t, b sin t)`` (local frame)."""
+        p = self._local(x)
+        q = np.maximum(np.abs(p), np.finfo(np.float64).tiny)  # first quadrant, off the axes
+        a, b = self.a, self.b
+
+        def g(t: Float, i: Int) -> tuple[Float, Float]:
+            s, c = np.sin(t), np.cos(t)
+            e = b * b - a * a
+            return e * s * c + a * q[i, 0] * s - b * q[i, 1] * c, (
+                e * (c * c - s * s) + a * q[i, 0] * c + b * q[i, 1] * s
+            )
+
+        n = len(p)
+        t0 = np.arctan2(a * q[:, 1], b * q[:, 0])
+        t = _bracketed_newton(g, t0, np.zeros(n), np.full(n, np.pi / 2), 4 * _EPS)
+        t = np.where(p[:, 0] < 0, np.pi - t, t)
+        return np.where(p[:, 1] < 0, -t, t)
+
+    def _point(self, t: Float) -> Float:
+        p = np.column_stack([self.a * np.cos(t), self.b * np.sin(t)])
+        return self.center + _rotate(p, *self._cs)
+
+    def closest_point(self, x: npt.ArrayLike) -> Float:
+        return self._point(self._parameter(x))
+
+    def normal(self, y: npt.ArrayLike) -> Float:
+        t = self._parameter(y)
+        return _unit(_rotate(np.column_stack([self.b * np.cos(t), self.a * np.sin(t)]), *self._cs))
+
+    def bounding_box(self) -> Float:
+        c, s = np.cos(self.angle), np.sin(self.angle)
+        w = np.hypot([self.a * c, self.a * s], [self.b * s, self.b * c]) * (1 + 4 * _EPS)
+        return np.array([self.center - w, self.center + w])
+
+    def sample(self, n: int) -> Float:
+        t = np.linspace(0.0, 2 * np.pi, max(4 * n, 4096), endpoint=False)
+        s = np.concatenate([[0.0], np.cumsum(_chords(self._point(t)))])
+        u = np.arange(n) * (s[-1] / max(n, 1))
+        return self._point(np.interp(u, s, np.append(t, 2 * np.pi)))
+
+    def min_radius_of_curvature(self) -> float:
+        return min(self.a, self.b) ** 2 / max(self.a, self.b)
+
+
+# ----------------------------------------------------------------------------- level sets
+class ImplicitCurve(Boundary):
+    """Gamma = {f = 0}, Omega = {f < 0} (or {f > 0} when ``inside_negative`` is False).
+
+    ``f`` maps points ``(n, 2)`` to ``(n,)``, ``grad`` to ``(n, 2)``, ``hess`` to ``(n, 2, 2)``;
+    without ``hess``, central differences of ``grad`` with step ``fd_step = 6e-6 * diag(bbox)``
+    (about eps^(1/3): it only affects the convergence rate, not the converged point). ``f``
+    must be a proper level-set function (``grad f != 0`` on Gamma), so that the sign of ``f``
+    is the sign of the domain.
+
+    Sampling: ``f`` is evaluated on a ``resolution``-squared grid over ``bbox`` (padded), the
+    zero level set is traced by marching squares into closed loops, whose points are moved
+    onto Gamma by Newton steps along ``grad f`` and resampled by arc length. Curves or
+    features smaller than a grid cell may be missed: give a tight ``bbox``.
+
+    Closest points: from the candidate samples (see :class:`ParametricCurve`), Newton's
+    method on the Lagrange system ``y - x + lam grad f(y) = 0, f(y) = 0`` (``lam`` eliminated
+    by its least-squares value), with steps limited to one sample spacing and a descent step
+    where the Newton step would go uphill; :class:`RuntimeError` where it does not converge.
+    """
+
+    def __init__(
+        self,
+        f: ArrayFn,
+        grad: ArrayFn,
+        hess: ArrayFn | None = None,
+        *,
+        bbox: npt.ArrayLike,
+        inside_negative: bool = True,
+        resolution: int = 512,
+        n_samples: int = 4096,
+    ) -> None:
+        box = np.asarray(bbox, dtype=np.float64)
+        if box.shape != (2, 2) or not np.isfinite(box).all() or not (box[1] > box[0]).all():
+            raise ValueError(f"bbox must be [[xmin, ymin], [xmax, ymax]], got {bbox!r}")
+        self._f, self._gradf, self._hessf = f, grad, hess
+        self._box = box
+        self._orient = 1.0 if inside_negative else -1.0
+        self.resolution, self.n_samples = int(resolution), int(n_samples)
+        self._scale = float(_norm(box[1] - box[0]))
+        self.fd_step = 6e-6 * self._scale
+
+    def _s(self, y: Float) -> Float:
+        return self._orient * _call(self._f, y, (len(y),))
+
+    def _g(self, y: Float) -> Float:
+        return self._orient * _call(self._gradf, y, (len(y), 2))
+
+    def _H(self, y: Float) -> Float:
+        if self._hessf is not None:
+            return self._orient * _call(self._hessf, y, (len(y), 2, 2))
+        e = np.eye(2) * self.fd_step
+        H = np.stack([self._g(y + e[j]) - self._g(y - e[j]) for j in (0, 1)], axis=2)
+        return (H + H.transpose(0, 2, 1)) / (4 * self.fd_step)
+
+    def sign(self, x: npt.ArrayLike) -> Float:
+        return np.where(self._s(_as_points(x)) < 0, -1.0, 1.0)
+
+    def _to_curve(self, y: Float, iters: int = 8) -> Float:
+        """Points moved onto Gamma by Newton steps along ``grad f``."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for _ in range(iters):
+                g = self._g(y)
+                y = y - (self._s(y) / (g * g).sum(axis=1))[:, None] * g
+        if not np.isfinite(y).all():
+            raise ValueError("grad f vanishes on the zero level set: f is not a proper level set")
+        return y
+
+    @cached_property
+    def _base_loops(self) -> list[Float]:
+        """Closed loops of Gamma from marching squares (see the class docstring)."""
+        n = self.resolution
+        pad = (self._box[1] - self._box[0]) * (0.02 + 2.0 / n)
+        lo, hi = self._box[0] - pad, self._box[1] + pad
+        xs, ys = np.linspace(lo[0], hi[0], n + 1), np.linspace(lo[1], hi[1], n + 1)
+        X, Y = np.meshgrid(xs, ys, indexing="ij")
+        F = self._s(np.column_stack([X.ravel(), Y.ravel()])).reshape(n + 1, n + 1)
+        P = F >= 0
+        cx, cy = P[:-1] != P[1:], P[:, :-1] != P[:, 1:]
+        ix, jx = np.nonzero(cx)
+        iy, jy = np.nonzero(cy)
+        wx = F[ix, jx] / (F[ix, jx] - F[ix + 1, jx])
+        wy = F[iy, jy] / (F[iy, jy] - F[iy, jy + 1])
+        pts = np.concatenate(
+            [
+                np.column_stack([xs[ix] + wx * (xs[ix + 1] - xs[ix]), ys[jx]]),
+                np.column_stack([xs[iy], ys[jy] + wy * (ys[jy + 1] - ys[jy])]),
+            ]
+        )
+        if not len(pts):
+            raise ValueError("f has no zero level set in bbox")
+        ex, ey = np.full(cx.shape, -1), np.full(cy.shape, -1)
+        ex[cx], ey[cy] = np.arange(len(ix)), len(ix) + np.arange(len(iy))
+        # crossing ids on the cell edges: bottom, right, top, left
+        E = np.stack([ex[:, :-1], ey[1:, :], ex[:, 1:], ey[:-1, :]], axis=-1).reshape(-1, 4)
+        cnt = (E >= 0).sum(axis=1)
+        segs = [E[cnt == 2][E[cnt == 2] >= 0].reshape(-1, 2)]
+        saddle = np.flatnonzero(cnt == 4)
+        if saddle.size:  # resolved by the sign of the cell centre
+            i, j = np.unravel_index(saddle, (n, n))
+            joined = (F[i, j] + F[i + 1, j] + F[i, j + 1] + F[i + 1, j + 1] >= 0) == P[i, j]
+            e = E[saddle]
+            segs += [np.where(joined[:, None], e[:, [0, 1]], e[:, [3, 0]])]
+            segs += [np.where(joined[:, None], e[:, [2, 3]], e[:, [1, 2]])]
+        seg = np.concatenate(segs)
+        if (np.bincount(seg.ravel(), minlength=len(pts)) != 2).any():
+            raise ValueError("the zero level set of f is not a set of closed curves inside bbox")
+        nb = seg[:, ::-1].ravel()[np.argsort(seg.ravel(), kind="stable")].reshape(-1, 2)
+        seen = np.zeros(len(pts), dtype=bool)
+        loops = []
+        for start in range(len(pts)):  # setup only: one pass over the crossings
+            if seen[start]:
+                continue
+            loop, prev, cur = [start], start, int(nb[start, 0])
+            while cur != start:
+                loop.append(cur)
+                prev, cur = cur, int(nb[cur, 1] if nb[cur, 0] == prev else nb[cur, 0])
+            seen[loop] = True
+            loops.append(self._to_curve(pts[loop]))
+        allp = np.concatenate(loops)
+        tol = 1e-9 * self._scale
+        if (allp < self._box[0] - tol).any() or (allp > self._box[1] + tol).any():
+            raise ValueError("the zero level set of f leaves bbox: enlarge bbox")
+        return loops
+
+    def _loops(self, spacing: float) -> list[Float]:
+        if not np.isfinite(spacing):
+            return self._base_loops
+        out = []
+        for q in self._base_loops:
+            n = max(8, int(np.ceil(_chords(q).sum() / spacing * 1.1)))
+            while True:
+                p = self._to_curve(_resample(q, n))
+                longest = float(_chords(p).max())
+                if longest <= spacing:
+                    break
+                n = int(np.ceil(n * longest / spacing * 1.1))
+            out.append(p)
+        return out
+
+    @cached_property
+    def _samples(self) -> tuple[Float, cKDTree, Int, Int, float]:
+        loops = self._loops(self._length() / self.n_samples)
+        pts = np.concatenate(loops)
+        prev, nxt = _neighbours([len(q) for q in loops])
+        return pts, cKDTree(pts), prev, nxt, max(float(_chords(q).max()) for q in loops)
+
+    def _newton(self, x: Float, y: Float, delta: float) -> tuple[Float, Bool]:
+        """Closest points from starts ``y`` on Gamma; converged mask (see class docstring)."""
+        y, ok, act = y.copy(), np.zeros(len(y), dtype=bool), np.arange(len(y))
+        tol = 1e-12 * self._scale
+        for _ in range(100):
+            if not act.size:
+                break
+            ya = y[act]
+            g = self._g(ya)
+            gn = _norm(g)
+            n = g / gn[:, None]
+            tau = _rot90(n)
+            Ht = np.einsum("kij,kj->ki", self._H(ya), tau)
+            r = ya - x[act]
+            lam = -(r * n).sum(axis=1) / gn
+            alpha = np.clip(-self._s(ya) / gn, -delta, delta)  # normal correction onto f = 0
+            q = 1 + lam * (tau * Ht).sum(axis=1)  # reduced Hessian of |y - x|^2 / 2 on Gamma
+            b = (tau * r).sum(axis=1) + alpha * lam * (n * Ht).sum(axis=1)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                beta = np.where(q > 0, -b / q, -np.sign(b) * delta)
+            dy = alpha[:, None] * n + np.clip(beta, -delta, delta)[:, None] * tau
+            y[act] = ya + dy
+            step = _norm(dy)
+            ok[act[step <= tol]] = True
+            act = act[step > tol]  # NaN steps drop out unconverged
+        return y, ok
+
+    def closest_point(self, x: npt.ArrayLike) -> Float:
+        x = _as_points(x)
+        if not len(x):
+            return np.empty((0, 2))
+        pts, tree, prev, nxt, h = self._samples
+        pi, si = _candidates(x, tree, pts, prev, nxt, 0.75 * h)
+        y, ok = self._newton(x[pi], pts[si], h)
+        best = _best(pi, np.where(ok, _norm(y - x[pi]), np.inf))
+        bad = np.flatnonzero(~ok[best])
+        if bad.size:
+            raise RuntimeError(
+                f"ImplicitCurve.closest_point: Newton's method did not converge for {bad.size} "
+                f"point(s), e.g. x={x[bad[0]].tolist()} (index {bad[0]})"
+            )
+        return y[best]
+
+    def normal(self, y: npt.ArrayLike) -> Float:
+        y = _as_points(y)
+        g = self._g(y)
+        off = np.abs(self._s(y)) > 1e-12 * self._scale * _norm(g)
+        if off.any():
+            g[off] = self._g(self.closest_point(y[off]))
+        return _unit(g)
+
+    def bounding_box(self) -> Float:
+        return self._box.copy()
+
+    def sample(self, n: int) -> Float:
+        loops = self._base_loops
+        k = _split(n, [_chords(q).sum() for q in loops])
+        out = [self._to_curve(_resample(q, m)) for q, m in zip(loops, k) if m > 0]
+        return np.concatenate(out) if out else np.empty((0, 2))
+
+    def min_radius_of_curvature(self) -> float:
+        y = self._samples[0]
+        g = self._g(y)
+        tau = _rot90(g) / _norm(g)[:, None]
+        kappa = np.abs(np.einsum("ki,kij,kj->k", tau, self._H(y), tau)) / _norm(g)
+        return float(1 / kappa.max()) if kappa.max() > 0 else np.inf
+
+
+# ----------------------------------------------------------------------------- parametric
+class ParametricCurve(Boundary):
+    """A closed C2 curve ``c(t)``, ``t`` in ``[0, period)``, counter-clockwise around Omega.
+
+    Subclasses set ``period`` and implement :meth:`point`, :meth:`derivative` and
+    :meth:`second_derivative` (for any real ``t``; the base class wraps it into the period).
+    The outward normal is ``N = (c'_y, -c'_x) / |c'|``.
+
+    Closest points: the curve is sampled at ``n_samples`` equal parameter steps ``dt``; every
+    point gets the candidate samples of :func:`_candidates` (usually just the nearest one)
+    and, for each, a bracketed safeguarded Newton method on ``g(t) = c'(t).(c(t) - x) = 0`` in
+    ``[t_i - dt, t_i + dt]`` (both neighbouring sample intervals); the nearest result wins.
+    Assumption (dense sampling): the distance to ``x`` has at most one local minimum per pair
+    of sample intervals and consecutive samples are less than 1.5 chords apart along the
+    curve; raise ``n_samples`` for curves with features finer than ``length / n_samples``.
+
+    Sign: exact and O(1) away from Gamma (see :class:`_Grid`), ``sign((x - pi(x)).N)`` in the
+    grid cells that Gamma crosses.
+    """
+
+    period: float
+
+    def __init__(self, n_samples: int = 4096) -> None:
+        if int(n_samples) < 64:
+            raise ValueError(f"n_samples must be at least 64, got {n_samples}")
+        self.n_samples = int(n_samples)
+
+    @abc.abstractmethod
+    def point(self, t: Float) -> Float:
+        """Points ``c(t)`` for parameters ``t (m,)``, shape ``(m, 2)``."""
+
+    @abc.abstractmethod
+    def derivative(self, t: Float) -> Float:
+        """First derivatives ``c'(t)``, shape ``(m, 2)``."""
+
+    @abc.abstractmethod
+    def second_derivative(self, t: Float) -> Float:
+        """Second derivatives ``c''(t)``, shape ``(m, 2)``."""
+
+    def _c012(self, t: Float) -> tuple[Float, Float, Float]:
+        """``c(t), c'(t), c''(t)`` for ``t`` in ``[0, period)`` (one call, for speed)."""
+        return self.point(t), self.derivative(t), self.second_derivative(t)
+
+    def _outward(self, t: Float) -> Float:
+        d = self.derivative(np.mod(t, self.period))
+        return _unit(np.column_stack([d[:, 1], -d[:, 0]]))
+
+    @cached_property
+    def _samples(self) -> tuple[Float, Float, cKDTree, Int, Int, float]:
+        n = self.n_samples
+        t = np.arange(n) * (self.period / n)
+        p = np.asarray(self.point(t), dtype=np.float64)
+        if not np.isfinite(p).all():
+            raise ValueError(f"{type(self).__name__}: the curve has non-finite points")
+        if _signed_area(p) <= 0:
+            raise ValueError(
+                f"{type(self).__name__} runs clockwise: the curve must run counter-clockwise "
+                "around the domain"
+            )
+        prev, nxt = _neighbours([n])
+        return t, p, cKDTree(p), prev, nxt, float(_chords(p).max())
+
+    def _project(self, x: Float) -> tuple[Float, Float]:
+        """Parameters ``(n,)`` and points ``(n, 2)`` of the closest points of ``x (n, 2)``."""
+        if not len(x):
+            return np.empty(0), np.empty((0, 2))
+        ts, ps, tree, prev, nxt, h = self._samples
+        pi, si = _candidates(x, tree, ps, prev, nxt, 0.75 * h)
+        xs, dt, T = x[pi], self.period / len(ts), self.period
+
+        def ev(t: Float, xx: Float) -> tuple[Float, Float, Float]:
+            c, c1, c2 = self._c012(np.mod(t, T))
+            r = c - xx
+            return (c1 * r).sum(axis=1), (c2 * r).sum(axis=1) + (c1 * c1).sum(axis=1), c
+
+        lo, hi = ts[si] - dt, ts[si] + dt
+        glo, _, clo = ev(lo, xs)
+        ghi, _, chi = ev(hi, xs)
+        t = np.where(_norm(clo - xs) <= _norm(chi - xs), lo, hi)  # no root: an endpoint
+        br = np.flatnonzero((glo <= 0) & (ghi >= 0))
+        if br.size:
+            xb = xs[br]
+            with np.errstate(divide="ignore", invalid="ignore"):  # secant start
+                t0 = lo[br] - glo[br] * (2 * dt) / (ghi[br] - glo[br])
+            t0 = np.where(np.isfinite(t0), t0, ts[si][br])
+            t[br] = _bracketed_newton(
+                lambda tt, i: ev(tt, xb[i])[:2], t0, lo[br], hi[br], 8 * _EPS * T
+            )
+        t = np.mod(t, T)
+        y = self.point(t)
+        best = _best(pi, _norm(y - xs))
+        return t[best], y[best]
+
+    def _exact_sign(self, x: Float, t: Float, y: Float) -> Float:
+        return np.where(((x - y) * self._outward(t)).sum(axis=1) < 0, -1.0, 1.0)
+
+    def sign(self, x: npt.ArrayLike) -> Float:
+        x = _as_points(x)
+        s = self._grid.sign_code(x)
+        m = s == 0
+        if m.any():
+            s[m] = self._exact_sign(x[m], *self._project(x[m]))
+        return s
+
+    def project(self, x: npt.ArrayLike) -> tuple[Float, Float]:
+        x = _as_points(x)
+        t, y = self._project(x)
+        s = self._grid.sign_code(x)
+        m = s == 0
+        s[m] = self._exact_sign(x[m], t[m], y[m])
+        return s * _norm(x - y), y
+
+    def closest_point(self, x: npt.ArrayLike) -> Float:
+        return self._project(_as_points(x))[1]
+
+    def normal(self, y: npt.ArrayLike) -> Float:
+        return self._outward(self._project(_as_points(y))[0])
+
+    def bounding_box(self) -> Float:
+        p, h = self._samples[1], self._samples[5]
+        return np.array([p.min(axis=0) - h, p.max(axis=0) + h])
+
+    def sample(self, n: int) -> Float:
+        t, p = self._samples[:2]
+        s = np.concatenate([[0.0], np.cumsum(_chords(p))])
+        u = np.arange(n) * (s[-1] / max(n, 1))
+        return self.point(np.mod(np.interp(u, s, np.append(t, self.period)), self.period))
+
+    def min_radius_of_curvature(self) -> float:
+        t = np.arange(4 * self.n_samples) * (self.period / (4 * self.n_samples))
+        d1, d2 = self.derivative(t), self.second_derivative(t)
+        kappa = np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / _norm(d1) ** 3
+        return float(1 / kappa.max()) if kappa.max() > 0 else np.inf
+
+    def _loops(self, spacing: float) -> list[Float]:
+        n = self.n_samples
+        while True:
+            p = self.point(np.arange(n) * (self.period / n))
+            longest = float(_chords(p).max())
+            if longest <= spacing:
+                return [p]
+            n = int(np.ceil(n * longest / spacing * 1.1))
+
+
+class PeriodicSpline(ParametricCurve):
+    """Closed periodic cubic spline through ``points (m, 2)``, chord-length parametrised.
+
+    A last point repeating the first is dropped. Clockwise points are reversed with a
+    :class:`UserWarning` when ``orientation="auto"`` and rejected when ``"ccw"``. Raises
+    :class:`ValueError` for fewer than 4 distinct points, non-finite or repeated consecutive
+    points, and for a spline that intersects itself.
+    """
+
+    def __init__(
+        self, points: npt.ArrayLike, orientation: str = "auto", n_samples: int = 4096
+    ) -> None:
+        super().__init__(n_samples)
+        if orientation not in ("auto", "ccw"):
+            raise ValueError(f'orientation must be "auto" or "ccw", got {orientation!r}')
+        p = _as_points(points, "points")
+        if len(p) > 1 and (p[0] == p[-1]).all():
+            p = p[:-1]
+        distinct = len(np.unique(p, axis=0))
+        if distinct < 4:
+            raise ValueError(f"a periodic spline needs at least 4 distinct points, got {distinct}")
+        dup = np.flatnonzero((np.roll(p, -1, axis=0) == p).all(axis=1))
+        if dup.size:
+            i = int(dup[0])
+            raise ValueError(
+                f"points {i} and {(i + 1) % len(p)} coincide (at {p[i].tolist()}): "
+                "remove the repeated point"
+            )
+        self._build(p)
+        if _signed_area(self.point(np.linspace(0, self.period, 2048, endpoint=False))) < 0:
+            if orientation == "ccw":
+                raise ValueError(
+                    "the points run clockwise: reverse them (points[::-1]) or use "
+                    'orientation="auto"'
+                )
+            warnings.warn(
+                "PeriodicSpline: the points run clockwise; they were reversed so that the "
+                "curve runs counter-clockwise around the domain",
+                UserWarning,
+                stacklevel=2,
+            )
+            self._build(p[::-1].copy())
+        self._check_simple()
+
+    def _build(self, p: Float) -> None:
+        closed = np.vstack([p, p[:1]])
+        knots = np.concatenate([[0.0], np.cumsum(_norm(np.diff(closed, axis=0)))])
+        self.points = p
+        self.period = float(knots[-1])
+        self._spline = CubicSpline(knots, closed, bc_type="periodic", axis=0)
+        self._d1, self._d2 = self._spline.derivative(1), self._spline.derivative(2)
+
+    def _check_simple(self) -> None:
+        """Raise if non-adjacent edges of a dense polyline of the spline intersect."""
+        m = max(self.n_samples, 16 * len(self.points))
+        a = self.point(np.arange(m) * (self.period / m))
+        b = np.roll(a, -1, axis=0)
+        pairs = cKDTree((a + b) / 2).query_pairs(float(_norm(b - a).max()), output_type="ndarray")
+        i, j = pairs[:, 0], pairs[:, 1]
+        gap = (j - i) % m
+        i, j = i[(gap > 1) & (gap < m - 1)], j[(gap > 1) & (gap < m - 1)]
+
+        def side(p: Float, q: Float, r: Float) -> Float:
+            return _cross(q - p, r - p)
+
+        hit = (side(a[i], b[i], a[j]) * side(a[i], b[i], b[j]) <= 0) & (
+            side(a[j], b[j], a[i]) * side(a[j], b[j], b[i]) <= 0
+        )  # and bounding boxes overlap (collinear edges):
+        hit &= (np.minimum(a[i], b[i]) <= np.maximum(a[j], b[j])).all(axis=1)
+        hit &= (np.minimum(a[j], b[j]) <= np.maximum(a[i], b[i])).all(axis=1)
+        if hit.any():
+            k = int(np.argmax(hit))
+            x, y = (a[i[k]] + b[i[k]]) / 2
+            raise ValueError(
+                f"the spline through the points intersects itself near ({x:.6g}, {y:.6g}): "
+                "check the order of the points"
+            )
+
+    def _c012(self, t: Float) -> tuple[Float, Float, Float]:
+        k = self._spline.x
+        i = np.clip(np.searchsorted(k, t, side="right") - 1, 0, len(k) - 2)
+        c = self._spline.c[:, i]  # (4, m, 2) coefficients of the intervals
+        u = (t - k[i])[:, None]
+        return (
+            ((c[0] * u + c[1]) * u + c[2]) * u + c[3],
+            (3 * c[0] * u + 2 * c[1]) * u + c[2],
+            6 * c[0] * u + 2 * c[1],
+        )
+
+    def point(self, t: Float) -> Float:
+        return self._spline(np.mod(t, self.period))
+
+    def derivative(self, t: Float) -> Float:
+        return self._d1(np.mod(t, self.period))
+
+    def second_derivative(self, t: Float) -> Float:
+        return self._d2(np.mod(t, self.period))
+
+    @classmethod
+    def from_file(cls, path: str | Path, **kwargs: object) -> PeriodicSpline:
+        """Spline through the points of a file (keyword arguments go to the constructor).
+
+        CSV or text: two columns ``x, y`` separated by a comma or whitespace, with an optional
+        header line and ``#`` comments. JSON (``.json`` or text starting with ``[``/``{``): a
+        list of ``[x, y]`` pairs or ``{"points": [[x, y], ...]}``.
+        """
+        path = Path(path)
+        text = path.read_text()
+        if path.suffix.lower() == ".json" or text.lstrip()[:1] in ("[", "{"):
+            data = json.loads(text)
+            if isinstance(data, dict):
+                if "points" not in data:
+                    raise ValueError(f'{path}: JSON object without a "points" entry')
+                data = data["points"]
+            pts = np.asarray(data, dtype=np.float64)
+        else:
+            rows: list[list[float]] = []
+            header_allowed = True
+            for k, line in enumerate(text.splitlines(), start=1):
+                line = line.split("#")[0].strip()
+                if not line:
+                    continue
+                try:
+                    rows.append([float(v) for v in line.replace(",", " ").split()])
+                except ValueError:
+                    if not header_allowed:
+                        raise ValueError(f"{path}, line {k}: not two numbers: {line!r}") from None
+                header_allowed = False
+            pts = np.asarray(rows, dtype=np.float64) if rows else np.empty((0, 2))
+        if pts.ndim != 2 or pts.shape[1] != 2:
+            raise ValueError(f"{path}: expected two columns x, y, got an array {pts.shape}")
+        return cls(pts, **kwargs)  # type: ignore[arg-type]
+
+
+class PolarCurve(ParametricCurve):
+    """Star-shaped curve ``c(theta) = center + r(theta) (cos theta, sin theta)``.
+
+    ``r``, ``dr``, ``d2r`` map angles ``(m,)`` to ``(m,)``; ``r`` must be positive (checked on
+    ``n_samples`` angles). The sign is the exact test ``|x - center| < r(atan2)``.
+    """
+
+    def __init__(
+        self,
+        r: ArrayFn,
+        dr: ArrayFn,
+        d2r: ArrayFn,
+        center: npt.ArrayLike = (0.0, 0.0),
+        n_samples: int = 4096,
+    ) -> None:
+        super().__init__(n_samples)
+        self.r, self.dr, self.d2r = r, dr, d2r
+        self.center = _vector(center, "center")
+        self.period = 2 * np.pi
+        th = np.arange(self.n_samples) * (2 * np.pi / self.n_samples)
+        rv = _call(r, th, th.shape)
+        bad = np.flatnonzero(~(np.isfinite(rv) & (rv > 0)))
+        if bad.size:
+            i = int(bad[0])
+            raise ValueError(f"r must be positive and finite: r({th[i]:.6g}) = {rv[i]}")
+
+    def _frame(self, t: Float) -> tuple[Float, Float]:
+        u = np.column_stack([np.cos(t), np.sin(t)])
+        return u, _rot90(u)
+
+    def point(self, t: Float) -> Float:
+        return self.center + _call(self.r, t, t.shape)[:, None] * self._frame(t)[0]
+
+    def derivative(self, t: Float) -> Float:
+        u, v = self._frame(t)
+        return _call(self.dr, t, t.shape)[:, None] * u + _call(self.r, t, t.shape)[:, None] * v
+
+    def second_derivative(self, t: Float) -> Float:
+        u, v = self._frame(t)
+        r, dr, d2r = (_call(f, t, t.shape)[:, None] for f in (self.r, self.dr, self.d2r))
+        return (d2r - r) * u + 2 * dr * v
+
+    def sign(self, x: npt.ArrayLike) -> Float:
+        d = _as_points(x) - self.center
+        th = np.arctan2(d[:, 1], d[:, 0])
+        return np.where(_norm(d) < _call(self.r, th, th.shape), -1.0, 1.0)
+
+    project = Boundary.project
+
+
+# ----------------------------------------------------------------------------- compositions
+class RigidMotion(Boundary):
+    """``base`` rotated by ``angle`` about ``center``, then translated by ``translation``.
+
+    ``y -> center + R(angle) (y - center) + translation``; everything is delegated to ``base``
+    through the inverse motion (normals and tangents rotated).
+    """
+
+    def __init__(
+        self,
+        base: Boundary,
+        angle: float = 0.0,
+        center: npt.ArrayLike = (0.0, 0.0),
+        translation: npt.ArrayLike = (0.0, 0.0),
+    ) -> None:
+        self.base = base
+        self.angle = float(angle)
+        self.center = _vector(center, "center")
+        self.translation = _vector(translation, "translation")
+        self._cs = np.cos(self.angle), np.sin(self.angle)
+
+    def moved(self, angle: float = 0.0, translation: npt.ArrayLike = (0.0, 0.0)) -> RigidMotion:
+        """The same base and centre under another motion (absolute, not composed)."""
+        return RigidMotion(self.base, angle, self.center, translation)
+
+    def _to_base(self, x: npt.ArrayLike) -> Float:
+        x = _as_points(x) - self.center - self.translation
+        return self.center + _rotate(x, self._cs[0], -self._cs[1])
+
+    def _from_base(self, y: Float) -> Float:
+        return self.center + _rotate(y - self.center, *self._cs) + self.translation
+
+    def sign(self, x: npt.ArrayLike) -> Float:
+        return self.base.sign(self._to_base(x))
+
+    def closest_point(self, x: npt.ArrayLike) -> Float:
+        return self._from_base(self.base.closest_point(self._to_base(x)))
+
+    def project(self, x: npt.ArrayLike) -> tuple[Float, Float]:
+        phi, y = self.base.project(self._to_base(x))
+        return phi, self._from_base(y)
+
+    def normal(self, y: npt.ArrayLike) -> Float:
+        return _rotate(self.base.normal(self._to_base(y)), *self._cs)
+
+    def tangent(self, y: npt.ArrayLike) -> Float:
+        return _rotate(self.base.tangent(self._to_base(y)), *self._cs)
+
+    def near(self, x: npt.ArrayLike, distance: float) -> Bool:
+        return self.base.near(self._to_base(x), distance)
+
+    def _lower_bound(self, x: Float) -> Float:
+        return self.base._lower_bound(self._to_base(x))
+
+    def bounding_box(self) -> Float:
+        (x0, y0), (x1, y1) = self.base.bounding_box()
+        c = self._from_base(np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]]))
+        pad = 4 * _EPS * np.abs(c).max()
+        return np.array([c.min(axis=0) - pad, c.max(axis=0) + pad])
+
+    def sample(self, n: int) -> Float:
+        return self._from_base(self.base.sample(n))
+
+    def min_radius_of_curvature(self) -> float:
+        return self.base.min_radius_of_curvature()
+
+    def _length(self) -> float:
+        return self.base._length()
+
+
+class Domain(Boundary):
+    """Omega = inside(``container``) minus the closures of the ``bodies``.
+
+    ``container=None`` is the whole plane (the background mesh clips it). Each body is a
+    :class:`Boundary` whose own inside is the solid. The components are assumed pairwise
+    disjoint and separated (bodies inside the container, apart from each other and from it),
+    so the distance to Gamma is the smallest distance to a component. Sign rule:
+    ``sign(x) = -1`` iff ``container.sign(x) == -1`` and ``body.sign(x) == +1`` for every
+    body; a point exactly on a body's curve (measure zero) therefore counts as in Omega.
+    Normals point out of Omega: into the bodies.
+    """
+
+    def __init__(self, container: Boundary | None = None, bodies: Sequence[Boundary] = ()) -> None:
+        self.container = container
+        self.bodies = tuple(bodies)
+        if container is None and not self.bodies:
+            raise ValueError("a Domain needs a container or at least one body")
+        for b, _ in self.components:
+            if not isinstance(b, Boundary):
+                raise TypeError(f"Domain components must be Boundary objects, got {type(b)}")
+
+    @property
+    def components(self) -> list[tuple[Boundary, bool]]:
+        """``(boundary, is_body)`` pairs: the container first (if any), then the bodies."""
+        first = [(self.container, False)] if self.container is not None else []
+        return first + [(b, True) for b in self.bodies]
+
+    def sign(self, x: npt.ArrayLike) -> Float:
+        x = _as_points(x)
+        s = self.container.sign(x) if self.container is not None else np.full(len(x), -1.0)
+        for b in self.bodies:
+            m = np.flatnonzero(s < 0)
+            s[m[b.sign(x[m]) < 0]] = 1.0
+        return s
+
+    def _closest(self, x: Float) -> tuple[Int, Float, Float]:
+        """Closest component index ``(n,)``, closest point ``(n, 2)`` and distance ``(n,)``.
+
+        Each point is projected onto the component with the smallest distance lower bound,
+        then onto every other component whose lower bound beats the best distance so far.
+        """
+        comps = [b for b, _ in self.components]
+        lb = np.array([b._lower_bound(x) for b in comps]).reshape(len(comps), len(x))
+        idx = lb.argmin(axis=0) if len(x) else np.zeros(0, dtype=np.intp)
+        y, d = np.empty((len(x), 2)), np.full(len(x), np.inf)
+        for rnd in range(2):
+            for k, b in enumerate(comps):
+                m = np.flatnonzero((idx == k) if rnd == 0 else (lb[k] < d) & (idx != k))
+                if m.size:
+                    yk = b.closest_point(x[m])
+                    dk = _norm(x[m] - yk)
+                    better = dk < d[m]
+                    m = m[better]
+                    y[m], d[m] = yk[better], dk[better]
+                    if rnd:
+                        idx[m] = k
+        return idx, y, d
+
+    def component_index(self, y: npt.ArrayLike) -> Int:
+        """Index ``(n,)`` into :attr:`components` of the component closest to each point."""
+        return self._closest(_as_points(y))[0]
+
+    def closest_point(self, x: npt.ArrayLike) -> Float:
+        return self._closest(_as_points(x))[1]
+
+    def project(self, x: npt.ArrayLike) -> tuple[Float, Float]:
+        x = _as_points(x)
+        _, y, d = self._closest(x)
+        return self.sign(x) * d, y
+
+    def normal(self, y: npt.ArrayLike) -> Float:
+        y = _as_points(y)
+        idx = self.component_index(y)
+        out = np.empty((len(y), 2))
+        for k, (b, body) in enumerate(self.components):
+            m = idx == k
+            if m.any():
+                out[m] = -b.normal(y[m]) if body else b.normal(y[m])
+        return out
+
+    def near(self, x: npt.ArrayLike, distance: float) -> Bool:
+        x = _as_points(x)
+        out = np.zeros(len(x), dtype=bool)
+        for b, _ in self.components:
+            out |= b.near(x, distance)
+        return out
+
+    def _lower_bound(self, x: Float) -> Float:
+        return np.min([b._lower_bound(x) for b, _ in self.components], axis=0)
+
+    def bounding_box(self) -> Float:
+        boxes = np.array([b.bounding_box() for b, _ in self.components])
+        return np.array([boxes[:, 0].min(axis=0), boxes[:, 1].max(axis=0)])
+
+    def sample(self, n: int) -> Float:
+        comps = [b for b, _ in self.components]
+        k = _split(n, [b._length() for b in comps])
+        return np.concatenate([b.sample(m) for b, m in zip(comps, k)] + [np.empty((0, 2))])
+
+    def min_radius_of_curvature(self) -> float:
+        return min(b.min_radius_of_curvature() for b, _ in self.components)
+
+    def _length(self) -> float:
+        return sum(b._length() for b, _ in self.components)

@@ -1,0 +1,266 @@
+"""Moving domains on one universal background: geometry updated in place, topology fixed."""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+
+from mpi4py import MPI
+
+import basix
+import numpy as np
+import numpy.typing as npt
+import ufl
+from dolfinx import fem
+from dolfinx import mesh as dmesh
+
+from .boundaries import Boundary
+from .conform import UniversalMesh
+from .curved import MAPS, jacobian_ratio, map_nodes
+from .quality import cell_quality
+from .validation import collective_call, raise_collective, vertex_reduce, where
+
+__all__ = ["MovingDomain", "StepReport", "count_jit_compilations"]
+
+
+@dataclass
+class StepReport:
+    """What one :meth:`MovingDomain.update` did and how good the result is."""
+
+    step: int
+    timings: dict[str, float]
+    """Seconds of the stages on this rank: ``classify``, ``project``, ``map`` (perturbation,
+    M_h, checks), ``geometry`` (curved nodes written in place, validity of curved cells),
+    ``total``."""
+    quality: dict[str, float | int]
+    """:func:`~dolfinx_universal.quality.cell_quality` of the active (straight) triangles."""
+    num_active_cells: int
+    num_updated_cells: int
+    """Cells whose geometry nodes were rewritten (global): those near Gamma now or before."""
+    min_jacobian_ratio: float
+
+
+class MovingDomain:
+    """A background mesh re-conformed in place to a moving domain at every step (SPEC §5).
+
+    The DOLFINx mesh :attr:`mesh` is the *whole* background with a degree-q coordinate
+    element; it is created once, so its topology, dofmaps, sparsity patterns and every form
+    compiled on it are reused for all steps. :meth:`update` rewrites, in place, the geometry
+    nodes of the cells near the boundary (now or at the previous step) and the cell indicator
+    :attr:`active` (1 on ``T_h^sub``, 0 on the triangles outside the domain). Forms are
+    written with the indicator::
+
+        a = md.active * inner(grad(u), grad(v)) * dx
+
+    and the degrees of freedom of inactive cells are fixed by :meth:`inactive_dofs`.
+    Integrals over the immersed boundary are one-sided interior-facet integrals
+    (:meth:`immersed_integral`). Geometry outside the domain is meaningless (triangles may
+    fold there) and never integrated with a nonzero weight.
+
+    Parameters
+    ----------
+    background
+        Degree-1 background mesh (shared-facet ghosts), acute near every position of Gamma.
+    degree
+        Geometry degree ``q``.
+    map
+        ``"I"``/``"G"`` (blend ``G_h``) or ``"I~"``/``"G~"`` (``G~_h``); see
+        :data:`~dolfinx_universal.curved.MAPS`.
+    R_r, alpha, eta, relaxation_factor, local_size
+        See :class:`~dolfinx_universal.conform.UniversalMesh` (``local_size=True`` for graded
+        backgrounds).
+    """
+
+    def __init__(
+        self,
+        background: dmesh.Mesh,
+        degree: int = 2,
+        map: str = "I",
+        *,
+        R_r: float | None = None,
+        alpha: float | None = None,
+        eta: float = 0.2,
+        relaxation_factor: float = 3.0,
+        local_size: bool = False,
+    ):
+        if map not in MAPS:
+            raise ValueError(f"unknown map {map!r}: choose one of {MAPS}")
+        self.universal = UniversalMesh(
+            background, R_r=R_r, alpha=alpha, eta=eta, relaxation_factor=relaxation_factor,
+            local_size=local_size,
+        )
+        self.degree, self.map = int(degree), map
+        self._kind = "G" if map in ("I", "G") else "G~"
+        ce = fem.coordinate_element(
+            dmesh.CellType.triangle, self.degree, basix.LagrangeVariant.gll_warped
+        )
+        self.mesh: dmesh.Mesh = fem.interpolate_geometry(background, ce)
+        """The background with degree-q geometry; its nodes move, its topology never does."""
+        self.comm: MPI.Comm = background.comm
+        self._x0 = self.mesh.geometry.x[:, :2].copy()
+        self._dofmap = self.mesh.geometry.dofmaps[0]
+        topo = self.mesh.topology
+        self._nco = topo.index_map(2).size_local
+        self._c2v = self.universal._c2v
+        self._c2f = self.universal._c2f
+        self._dirty = np.zeros(len(self._c2v), dtype=bool)
+        Q0 = fem.functionspace(self.mesh, ("DG", 0))
+        self.active = fem.Function(Q0, name="active")
+        """Cell indicator of ``T_h^sub``: 1 inside the current domain, 0 outside."""
+        self._cell_dof = Q0.dofmap.list[:, 0]
+        self.boundary: Boundary | None = None
+        self.immersed_facets = np.empty(0, dtype=np.int32)
+        """Background facets on Gamma_h (process-local, owned and ghost)."""
+        self.active_cells = np.empty(0, dtype=np.int32)
+        """Cells of ``T_h^sub`` (process-local, owned and ghost)."""
+        self.steps: list[StepReport] = []
+
+    # -- the update -----------------------------------------------------------------------
+
+    def update(self, boundary: Boundary) -> StepReport:
+        """Conform the background to the domain bounded by ``boundary`` (collective).
+
+        Raises
+        ------
+        MeshingError
+            On every rank if the domain cannot be meshed (nothing is changed then).
+        """
+        t0 = time.perf_counter()
+        um = self.universal
+        sm = um.straight_map(boundary)
+        t1 = time.perf_counter()
+        c2v = self._c2v
+        moved_vertex = np.any(sm.y != um._x, axis=1)
+        near = moved_vertex[c2v].any(axis=1) | ((sm.sign[c2v] > 0).sum(axis=1) == 2)
+        redo = np.flatnonzero(near | self._dirty)
+        nodes = collective_call(
+            self.comm, "the curved map", map_nodes, c2v[redo], sm.y, sm.x, sm.sign, self.degree,
+            self._kind, boundary.closest_point,
+        )
+        # Validity of the curved (positively cut) active triangles.
+        cut = np.flatnonzero((sm.sign[c2v[redo]] > 0).sum(axis=1) == 2)
+        ratio = jacobian_ratio(nodes[cut], self.degree) if self.degree > 1 else np.ones(0)
+        bad = ratio <= 0
+        raise_collective(
+            self.comm,
+            [f"{int(bad.sum())} curved triangles would be inverted near "
+             f"{where(nodes[cut[bad]].mean(axis=1))}: refine the background there"]
+            if bad.any() else [],
+        )
+        # Write the nodes in place: cells moved now, and cells moved before (restored).
+        # Inactive cells first: on Gamma_h the active cell's curved nodes must win.
+        x = self.mesh.geometry.x
+        order = np.argsort(sm.kept[redo], kind="stable")
+        x[self._dofmap[redo[order]].ravel(), :2] = nodes[order].reshape(-1, 2)
+        self._dirty = near
+        kept = sm.kept
+        self.active.x.array[self._cell_dof] = kept.astype(np.float64)
+        self.active_cells = np.flatnonzero(kept).astype(np.int32)
+        pc = np.flatnonzero(kept & ((sm.sign[c2v] > 0).sum(axis=1) == 2))
+        k = np.argmin(sm.sign[c2v[pc]], axis=1)
+        self.immersed_facets = np.unique(self._c2f[pc, k]).astype(np.int32)
+        self.boundary = boundary
+        self._sign, self._y, self._xb = sm.sign, sm.y, sm.x
+        t2 = time.perf_counter()
+
+        owned_kept = np.flatnonzero(kept[: self._nco])
+        quality = cell_quality(
+            self.comm, sm.y, um._x, c2v[owned_kept], sm.sign, moved_vertex
+        )
+        timings = dict(sm.timings, geometry=t2 - t1, total=t2 - t0)
+        report = StepReport(
+            step=len(self.steps),
+            timings=timings,
+            quality=quality,
+            num_active_cells=int(quality["n_cells"]),
+            num_updated_cells=self.comm.allreduce(int(np.count_nonzero(redo < self._nco))),
+            min_jacobian_ratio=self.comm.allreduce(
+                float(ratio.min()) if len(ratio) else 1.0, op=MPI.MIN
+            ),
+        )
+        self.steps.append(report)
+        return report
+
+    # -- what forms and boundary conditions need --------------------------------------------
+
+    def inactive_dofs(self, V: fem.FunctionSpace) -> npt.NDArray[np.int32]:
+        """Dofs of ``V`` (block indices, process-local) that belong to no active cell.
+
+        Fix them (e.g. a zero Dirichlet condition) so that the system on the whole
+        background is nonsingular. Collective.
+        """
+        dofmap = V.dofmap
+        imap = dofmap.index_map
+        mark = np.zeros(imap.size_local + imap.num_ghosts)
+        owned_active = self.active_cells[self.active_cells < self._nco]
+        mark[dofmap.list[owned_active].ravel()] = 1.0
+        mark = vertex_reduce(imap, mark, "sum")
+        return np.flatnonzero(mark == 0).astype(np.int32)
+
+    def immersed_dofs(self, V: fem.FunctionSpace) -> npt.NDArray[np.int32]:
+        """Dofs of ``V`` on the immersed boundary Gamma_h (process-local). Collective."""
+        self.mesh.topology.create_connectivity(1, 2)
+        return fem.locate_dofs_topological(V, 1, self.immersed_facets)
+
+    def immersed_integral(self, integrand: Callable[[str], ufl.core.expr.Expr]) -> ufl.Form:
+        """``∫_Gamma integrand ds`` as a one-sided interior-facet form on the background.
+
+        ``integrand(side)`` must return the integrand restricted to ``side`` (``"+"`` or
+        ``"-"``), e.g. ``lambda s: dot(sigma(s) * n(s), e)`` with
+        ``n = ufl.FacetNormal(md.mesh)``. On a facet of Gamma_h exactly one side is active,
+        and its outward normal is the domain's outward normal; every other facet gets weight
+        zero. The form does not change from step to step.
+        """
+        chi = self.active
+        weight = {s: chi(s) * (1 - chi(o)) for s, o in (("+", "-"), ("-", "+"))}
+        return (weight["+"] * integrand("+") + weight["-"] * integrand("-")) * ufl.dS(
+            domain=self.mesh
+        )
+
+    def immersed_nodes(self) -> npt.NDArray[np.float64]:
+        """Geometry nodes on Gamma_h (process-local), ``(n, 2)``: they lie on Gamma."""
+        topo = self.mesh.topology
+        topo.create_connectivity(1, 2)
+        f2c = topo.connectivity(1, 2)
+        cells = f2c.array[f2c.offsets[self.immersed_facets]]
+        cells = np.where(
+            self.active.x.array[self._cell_dof[cells]] > 0, cells,
+            f2c.array[np.minimum(f2c.offsets[self.immersed_facets] + 1,
+                                 f2c.offsets[self.immersed_facets + 1] - 1)],
+        )
+        # the local facet index of each facet in its active cell
+        local = np.argmax(self._c2f[cells] == self.immersed_facets[:, None], axis=1)
+        lam = _facet_node_mask(self.degree)
+        return self.mesh.geometry.x[self._dofmap[cells][lam[local]], :2]
+
+
+def _facet_node_mask(degree: int) -> npt.NDArray[np.bool_]:
+    """For each local facet (opposite vertex i), which reference nodes lie on it, ``(3, nd)``."""
+    from .curved import reference_nodes
+
+    lam = reference_nodes(degree)
+    return np.abs(lam.T) < 1e-12
+
+
+@contextlib.contextmanager
+def count_jit_compilations() -> Iterator[list[int]]:
+    """Count FFCx C compilations (cache misses) inside a ``with`` block.
+
+    Yields a one-element list holding the count so far.
+    """
+    import ffcx.codegeneration.jit as jit
+
+    count = [0]
+    original = jit._compile_objects
+
+    def counting(*args, **kwargs):
+        count[0] += 1
+        return original(*args, **kwargs)
+
+    jit._compile_objects = counting
+    try:
+        yield count
+    finally:
+        jit._compile_objects = original

@@ -1,0 +1,223 @@
+"""Command line: shapes, output files, summary, argument and meshing errors, MPI."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from mpi4py import MPI
+
+import numpy as np
+import pytest
+from dolfinx import io
+
+from dolfinx_universal.cli import ArgumentError, main, polar_functions
+
+comm = MPI.COMM_WORLD
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def spline_points(n: int = 14) -> np.ndarray:
+    t = np.linspace(0.0, 2 * np.pi, n, endpoint=False)
+    r = 1.0 + 0.25 * np.sin(2 * t)
+    return np.column_stack([r * np.cos(t), r * np.sin(t)])
+
+
+def write_points(path: Path, fmt: str) -> Path:
+    if comm.rank == 0:
+        p = spline_points()
+        if fmt == "csv":
+            np.savetxt(path, p, delimiter=",", header="x,y", comments="")
+        else:
+            path.write_text(json.dumps({"points": p.tolist()}))
+    comm.barrier()
+    return path
+
+
+def read_summary(out: Path) -> dict:
+    return json.loads((out / "summary.json").read_text())
+
+
+def check_summary(s: dict, shape: str) -> None:
+    q = s["quality"]
+    assert s["shape"]["type"] == shape
+    assert s["n_cells"] == q["n_cells"] > 0
+    assert 0 < q["n_positively_cut"] < s["n_cells"]
+    assert q["n_inverted"] == 0 and q["min_area_ratio"] > 0
+    assert 0 < q["theta_min_deg"] <= 60 <= q["theta_max_deg"] < 180
+    assert s["facets"]["counts"]["immersed"] >= 3 and s["facets"]["counts"]["outer"] == 0
+    assert s["n_background_cells"] > s["n_cells"]
+    assert s["alpha"] == pytest.approx(0.75) and s["R_r"] == pytest.approx(3 * s["h"])
+    assert s["timings_s"]["total"] > 0
+
+
+@pytest.mark.parametrize(
+    "shape, args",
+    [
+        ("circle", ["--circle", "1.0", "--center", "0.3", "-0.2"]),
+        ("ellipse", ["--ellipse", "1.5", "0.8", "--angle", "30", "--no-plot"]),
+        ("polar", ["--polar", "1 + 0.2*cos(3*theta)", "--no-plot"]),
+        ("spline", ["--spline", "points.csv", "--no-plot"]),
+        ("spline", ["--spline", "points.json", "--h", "0.12", "--no-plot"]),
+    ],
+)
+def test_shapes(mpi_tmp_path, capsys, shape, args):
+    out = mpi_tmp_path / "out"
+    args = [str(write_points(mpi_tmp_path / a, a[-4:].lstrip(".")))
+            if a.startswith("points") else a for a in args]
+    assert main([*args, "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == ""
+    if comm.rank == 0:
+        assert "cells" in captured.out
+    names = ["mesh.xdmf", "mesh.h5", "summary.json"]
+    if "--no-plot" not in args:
+        names.append("mesh.png")
+    for name in names:
+        assert (out / name).is_file() and (out / name).stat().st_size > 0
+    assert (out / "mesh.bp").is_dir()
+    s = read_summary(out)
+    check_summary(s, shape)
+    if "--h" in args:
+        assert s["h"] == 0.12
+
+
+def test_curved_outputs(mpi_tmp_path):
+    out2, out3 = mpi_tmp_path / "p2", mpi_tmp_path / "p3"
+    assert main(["--circle", "1", "--degree", "2", "--out", str(out2), "--quiet"]) == 0
+    s = read_summary(out2)
+    check_summary(s, "circle")
+    assert s["degree"] == 2 and s["map"] == "I" and 0 < s["curved"]["min_jacobian_ratio"] <= 1
+    with io.XDMFFile(comm, out2 / "mesh.xdmf", "r") as xdmf:  # mesh and tags read back
+        msh = xdmf.read_mesh(name="mesh")
+        msh.topology.create_connectivity(1, 2)
+        tags = xdmf.read_meshtags(msh, name="facet_tags")
+    assert msh.topology.index_map(2).size_global == s["n_cells"]
+    assert msh.geometry.cmaps[0].degree == 2
+    owned = tags.find(1) < msh.topology.index_map(1).size_local
+    assert comm.allreduce(int(owned.sum())) == s["facets"]["counts"]["immersed"]
+
+    argv = ["--circle", "1", "--degree", "3", "--map", "G~", "--no-plot", "--quiet"]
+    assert main([*argv, "--out", str(out3)]) == 0
+    s3 = read_summary(out3)
+    assert s3["n_cells"] == s["n_cells"] and s3["map"] == "G~"
+    assert not (out3 / "mesh.xdmf").exists() and not (out3 / "mesh.png").exists()
+    assert (out3 / "mesh.bp").is_dir()
+
+
+def test_help(capsys):
+    assert main(["--help"]) == 0
+    text = capsys.readouterr().out
+    if comm.rank == 0:
+        for option in ("--circle", "--ellipse", "--polar", "--spline", "--h", "--margin",
+                       "--eta", "--rr", "--alpha", "--degree", "--map", "--out"):
+            assert option in text
+        assert "default: 0.2" in text
+
+
+@pytest.mark.parametrize(
+    "args, fragment",
+    [
+        ([], "one of the arguments"),
+        (["--circle", "1", "--ellipse", "1", "2"], "not allowed"),
+        (["--circle", "1", "--h", "-0.1"], "--h must be a positive"),
+        (["--circle", "0"], "--circle R must be a positive"),
+        (["--ellipse", "1", "-2"], "--ellipse B"),
+        (["--circle", "1", "--rr", "0.5"], "--rr must exceed 1"),
+        (["--circle", "1", "--alpha", "0.5"], "--alpha must lie in"),
+        (["--circle", "1", "--map", "X"], "invalid choice"),
+        (["--circle", "1", "--h", "abc"], "invalid float value"),
+        (["--spline", "does-not-exist.csv"], "no such file"),
+        (["--polar", "1 + sin(theta"], "invalid polar expression"),
+        (["--polar", "__import__('os')"], "unknown name '__import__'"),
+        (["--polar", "np.__dict__"], "only np.<function> attributes"),
+        (["--polar", "1 + nope(theta)"], "unknown name 'nope'"),
+        (["--polar", "0.5 + cos(theta)"], "must be positive"),
+        (["--polar", "1 + 0.1*theta"], "not 2*pi-periodic"),
+    ],
+)
+def test_bad_arguments(mpi_tmp_path, capsys, args, fragment):
+    assert main([*args, "--out", str(mpi_tmp_path / "bad"), "--no-plot"]) == 2
+    err = capsys.readouterr().err
+    if comm.rank == 0:
+        assert err.startswith("dolfinx-universal: error: ") and err.count("\n") == 1
+        assert fragment in err
+    else:
+        assert err == ""
+    assert not (mpi_tmp_path / "bad" / "summary.json").exists()
+
+
+def test_bad_spline_file(mpi_tmp_path, capsys):
+    path = mpi_tmp_path / "bad.csv"
+    if comm.rank == 0:
+        path.write_text("x,y\n0,0\n1,0\nnot numbers\n")
+    comm.barrier()
+    assert main(["--spline", str(path), "--out", str(mpi_tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    if comm.rank == 0:
+        assert err.startswith("dolfinx-universal: error: --spline") and err.count("\n") == 1
+
+
+@pytest.mark.parametrize(
+    "args, fragment",
+    [
+        (["--circle", "0.4", "--h", "0.5"], "inverted"),  # h too coarse for the circle
+        (["--circle", "0.1", "--h", "0.5"], "no background vertex lies inside"),
+    ],
+)
+def test_meshing_failure(mpi_tmp_path, capsys, args, fragment):
+    assert main([*args, "--out", str(mpi_tmp_path / "fail")]) == 1
+    err = capsys.readouterr().err
+    if comm.rank == 0:
+        assert err.startswith("dolfinx-universal: error: ") and err.count("\n") == 1
+        assert fragment in err
+    assert not (mpi_tmp_path / "fail" / "summary.json").exists()
+
+
+def test_polar_derivatives():
+    theta = np.linspace(-np.pi, 3 * np.pi, 101)
+    r, dr, d2r, method = polar_functions("1 + 0.2*cos(3*theta)")
+    assert method == "complex-step"
+    np.testing.assert_allclose(r(theta), 1 + 0.2 * np.cos(3 * theta), rtol=1e-15)
+    np.testing.assert_allclose(dr(theta), -0.6 * np.sin(3 * theta), atol=1e-14)
+    np.testing.assert_allclose(d2r(theta), -1.8 * np.cos(3 * theta), atol=1e-10)
+    # Not complex-safe (np.abs): fourth-order finite differences.
+    r, dr, d2r, method = polar_functions("1.5 + 0.1*np.abs(sin(theta))**3")
+    assert method == "finite-difference"
+    t = np.linspace(0.3, 2.8, 11)  # where sin > 0
+    np.testing.assert_allclose(dr(t), 0.3 * np.sin(t) ** 2 * np.cos(t), atol=1e-10)
+    np.testing.assert_allclose(
+        d2r(t), 0.6 * np.sin(t) * np.cos(t) ** 2 - 0.3 * np.sin(t) ** 3, atol=1e-7
+    )
+    r, dr, d2r, _ = polar_functions("2")  # constants broadcast
+    assert r(theta).shape == theta.shape and np.all(dr(theta) == 0) and np.all(d2r(theta) == 0)
+    with pytest.raises(ArgumentError):
+        polar_functions("log(cos(theta))")  # NaN where cos < 0
+
+
+@pytest.mark.mpi
+def test_mpirun_matches_serial(tmp_path):
+    if comm.size > 1:
+        pytest.skip("runs its own mpirun")
+    mpirun = Path(sys.executable).parent / "mpirun"
+    if not mpirun.exists():
+        pytest.skip("no mpirun next to the Python executable")
+    args = ["--circle", "1.0", "--center", "0.05", "0.02", "--h", "0.08"]
+    assert main([*args, "--out", str(tmp_path / "serial"), "--quiet"]) == 0
+    env = dict(os.environ, OMP_NUM_THREADS="1", MPLBACKEND="Agg")
+    cmd = [str(mpirun), "-n", "2", sys.executable, "-m", "dolfinx_universal", *args,
+           "--out", str(tmp_path / "mpi")]
+    proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=180)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert proc.stdout.count("cells") == 1  # rank 0 prints alone
+    serial, parallel = read_summary(tmp_path / "serial"), read_summary(tmp_path / "mpi")
+    assert parallel["mpi_size"] == 2
+    assert parallel["n_cells"] == serial["n_cells"]
+    assert parallel["facets"] == serial["facets"]
+    for key in ("n_positively_cut", "n_unaltered", "n_inverted"):
+        assert parallel["quality"][key] == serial["quality"][key]
+    assert parallel["quality"]["theta_min_deg"] == pytest.approx(serial["quality"]["theta_min_deg"])
+    assert (tmp_path / "mpi" / "mesh.png").stat().st_size > 0

@@ -1,0 +1,63 @@
+"""Every demo runs in quick mode, in serial and under mpirun, with the same numbers."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from conftest import run_mpi
+
+
+def _run(demo: str, nprocs: int, out) -> dict:
+    run_mpi(nprocs, [f"demos/{demo}", "--quick", "--out", str(out)], timeout=600)
+    return json.loads((out / "summary.json").read_text())
+
+
+def _same(a, b, rtol: float) -> None:
+    """Nested JSON values equal, numbers to a relative tolerance."""
+    if isinstance(a, dict):
+        assert a.keys() == b.keys()
+        for k in a:
+            _same(a[k], b[k], rtol)
+    elif isinstance(a, list):
+        assert len(a) == len(b)
+        for x, y in zip(a, b):
+            _same(x, y, rtol)
+    elif isinstance(a, float):
+        assert a == pytest.approx(b, rel=rtol, abs=1e-14)
+    else:
+        assert a == b
+
+
+def test_quality_demo(tmp_path):
+    serial = _run("quality.py", 1, tmp_path / "s")
+    assert {"circle", "spline"} == serial.keys()
+    keys = {"h_over_R", "eta", "n_cells", "n_positively_cut", "theta_min_deg", "theta_max_deg",
+            "q_max", "Q3_max", "Q2_max", "Q1_max"}
+    assert all(set(r) == keys for r in serial["circle"])
+    keys = {"level", "eta", "n_cells", "n_positively_cut", "percent_unaltered",
+            "theta_min_deg", "theta_max_deg", "q_max"}
+    assert all(set(r) == keys for r in serial["spline"])
+    for name in ("circle_meshes.png", "circle_quality.png", "spline_meshes.png"):
+        assert (tmp_path / "s" / name).stat().st_size > 10_000
+    _same(serial, _run("quality.py", 2, tmp_path / "p"), rtol=1e-12)
+
+
+def test_poisson_demo(tmp_path):
+    serial = _run("poisson_convergence.py", 1, tmp_path / "s")
+    rows = serial["rows"]
+    assert {r["map"] for r in rows} == {"I", "I~", "G"} and {r["k"] for r in rows} == {1, 2, 3, 4}
+    assert set(rows[0]) == {"map", "k", "geometry_degree", "h", "n_cells", "L2", "H1"}
+    assert set(serial["rates"][0]) == {"map", "k", "L2_rate", "H1_rate"}
+    # Even on the quick (coarse) levels the rates are about optimal.
+    for r in serial["rates"]:
+        assert r["L2_rate"] > r["k"] + 1 - 0.3 and r["H1_rate"] > r["k"] - 0.3, r
+    for name in ("convergence_L2.png", "convergence_H1.png", "closeup_k2.png", "closeup_k3.png"):
+        assert (tmp_path / "s" / name).stat().st_size > 10_000
+    parallel = _run("poisson_convergence.py", 2, tmp_path / "p")
+    # Same meshes, same discrete problems: errors agree to solver rounding (relative to the
+    # error itself, which reaches 1e-11 for k = 4).
+    for a, b in zip(rows, parallel["rows"]):
+        assert a["n_cells"] == b["n_cells"]
+        assert np.isclose(a["L2"], b["L2"], rtol=1e-5) and np.isclose(a["H1"], b["H1"], rtol=1e-5)
