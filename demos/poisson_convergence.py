@@ -30,11 +30,12 @@ from pathlib import Path
 
 from mpi4py import MPI
 
-import dolfinx_universal as du
 import numpy as np
 import ufl
 from dolfinx import fem
 from dolfinx.fem.petsc import LinearProblem
+
+import dolfinx_universal as du
 from dolfinx_universal.plotting import plot_conforming, save
 
 parser = argparse.ArgumentParser(description="Poisson convergence on curved universal meshes")

@@ -33,8 +33,9 @@ from pathlib import Path
 
 from mpi4py import MPI
 
-import dolfinx_universal as du
 import numpy as np
+
+import dolfinx_universal as du
 from dolfinx_universal.plotting import plot_conforming, save
 
 parser = argparse.ArgumentParser(description=__doc__)

@@ -125,6 +125,16 @@ def _vertex_sizes(imv, x, c2v, num_owned: int, local: bool, comm: MPI.Comm):
     return vertex_reduce(imv, hv, "max")
 
 
+def _csr_gather(offsets: npt.NDArray, array: npt.NDArray, rows: npt.NDArray) -> npt.NDArray:
+    """Unique entries of the given rows of a CSR adjacency list."""
+    if len(rows) == 0:
+        return np.empty(0, dtype=array.dtype)
+    start, stop = offsets[rows], offsets[rows + 1]
+    count = stop - start
+    idx = np.repeat(start - np.cumsum(count) + count, count) + np.arange(count.sum())
+    return np.unique(array[idx])
+
+
 def _incidence(imv, vertices: npt.NDArray, n: int) -> npt.NDArray[np.float64]:
     """Global number of times each local vertex appears in ``vertices`` (over all ranks)."""
     count = np.bincount(np.asarray(vertices).ravel(), minlength=n).astype(np.float64)
@@ -170,6 +180,11 @@ class StraightMap:
     on_positive_edge: npt.NDArray[np.bool_]
     kept: npt.NDArray[np.bool_]
     """Cells of ``T_h^sub`` (owned and ghost cells), ``(num_cells,)``."""
+    moved: npt.NDArray[np.bool_]
+    """Vertices whose image differs from their original position, ``(num_vertices,)``."""
+    near_cells: npt.NDArray[np.int32]
+    """Cells (owned and ghost) with a vertex within ``R_r`` of Gamma: every moved or
+    positively cut cell is among them."""
     num_relocated: int
     timings: dict[str, float]
 
@@ -235,8 +250,10 @@ class UniversalMesh:
         elif not (alpha_min - 1e-12 <= alpha <= 1.0):
             raise ValueError(f"alpha must lie in [(1 + h/R_r)^-1, 1] = [{alpha_min:.4g}, 1]")
         self.alpha = float(alpha)
-        for a, b in ((2, 1), (1, 2), (1, 0)):
+        for a, b in ((2, 1), (1, 2), (1, 0), (0, 2)):
             topo.create_connectivity(a, b)
+        v2c = topo.connectivity(0, 2)
+        self._v2c_offsets, self._v2c = v2c.offsets, v2c.array
         self._c2f = topo.connectivity(2, 1).array.reshape(-1, 3)
         f2c = topo.connectivity(1, 2)
         self._f2c_offsets, self._f2c = f2c.offsets, f2c.array
@@ -260,32 +277,51 @@ class UniversalMesh:
         nv = len(x)
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
-        # Classification: signs everywhere (cheap), projections only in the band near Gamma.
-        s = np.asarray(collective_call(comm, "the sign test", boundary.sign, x), dtype=float)
+        # Classification. Gamma lies in its bounding box, so every vertex outside the box
+        # (enlarged by the band width) has the sign of the far field: only the vertices in
+        # the box are tested, and only those within R_r of Gamma get projected.
         rmax = float(self.R_r.max()) if nv else 0.0
-        band = np.asarray(collective_call(comm, "the band test", boundary.near, x, rmax), bool)
+        box = np.asarray(
+            collective_call(comm, "the bounding box", boundary.bounding_box), dtype=float
+        )
+        pad = rmax + 2.0 * (float(self.h.max()) if nv else 0.0)
+        lo, hi = box[0] - pad, box[1] + pad
+        far = np.asarray(
+            collective_call(comm, "the sign test", boundary.sign, (hi + pad)[None]), dtype=float
+        )[0]
+        cand = np.flatnonzero(
+            (x[:, 0] >= lo[0]) & (x[:, 0] <= hi[0]) & (x[:, 1] >= lo[1]) & (x[:, 1] <= hi[1])
+        )
+        s = np.full(nv, far)
+        s[cand] = collective_call(comm, "the sign test", boundary.sign, x[cand])
+        near_flag = np.asarray(
+            collective_call(comm, "the band test", boundary.near, x[cand], rmax), dtype=bool
+        )
+        band_idx = cand[near_flag]
         timings["classify"] = time.perf_counter() - t0
 
         t1 = time.perf_counter()
         phi = np.where(s < 0, -np.inf, np.inf)
         closest = np.full((nv, 2), np.nan)
         normal = np.full((nv, 2), np.nan)
-        phi_b, y_b = collective_call(comm, "closest-point projection", boundary.project, x[band])
+        xb = x[band_idx]
+        phi_b, y_b = collective_call(comm, "closest-point projection", boundary.project, xb)
         bad = ~(np.isfinite(phi_b) & np.isfinite(y_b).all(axis=1))
         raise_collective(
             comm,
-            [f"closest-point projection returned NaN/inf for vertices at {where(x[band][bad])}"]
+            [f"closest-point projection returned NaN/inf for vertices at {where(xb[bad])}"]
             if bad.any()
             else [],
         )
-        phi[band], closest[band] = phi_b, y_b
-        normal[band] = collective_call(comm, "the normal", boundary.normal, y_b)
+        phi[band_idx], closest[band_idx] = phi_b, y_b
+        normal[band_idx] = collective_call(comm, "the normal", boundary.normal, y_b)
         timings["project"] = time.perf_counter() - t1
 
         # Quality perturbation: relocate inside vertices too close to Gamma, to a fixed point.
         t2 = time.perf_counter()
+        near_all = _csr_gather(self._v2c_offsets, self._v2c, band_idx)  # cells at the band
+        near_cells = near_all[near_all < nco]
         owned = c2v[:nco]
-        near_cells = np.flatnonzero(band[owned].any(axis=1))
         near = owned[near_cells]
         xp = x.copy()
         relocated = np.zeros(nv, dtype=bool)
@@ -299,13 +335,16 @@ class UniversalMesh:
             relocated |= new
         num_relocated = comm.allreduce(int(relocated[: imv.size_local].sum()))
 
-        # Positive edges, Gamma_h, and the checks of SPEC §6.
+        # Positive edges, Gamma_h, and the checks of SPEC §6. A vertex outside the domain in
+        # a kept triangle is next to an inside vertex, hence in the band: the incidence
+        # counts near the band are all that the checks need.
         pc_owned = near_cells[positively_cut(s, near)]
         u, v, w = positive_edges(s, owned[pc_owned])
         pe_count = _incidence(imv, np.concatenate([u, v]), nv)
         on_pe = pe_count > 0
         kept = kept_cells(s, c2v)
-        in_kept = _incidence(imv, owned[kept[:nco]], nv) > 0
+        near_kept = near_cells[kept[near_cells]]
+        in_kept = _incidence(imv, owned[near_kept], nv) > 0
         if comm.allreduce(int(np.count_nonzero(kept[:nco]))) == 0:
             raise MeshingError(
                 "no background vertex lies inside the domain: the domain is outside the "
@@ -316,15 +355,23 @@ class UniversalMesh:
         )
         raise_collective(comm, problems)
 
-        y = straight_map(xp, phi, closest, normal, on_pe, self.h, self.R_r, self.alpha)
-        problems = self._check_output(y, np.flatnonzero(kept[:nco]), in_kept)
+        # M_h moves band vertices only.
+        y = xp.copy()
+        y[band_idx] = straight_map(
+            xp[band_idx], phi[band_idx], closest[band_idx], normal[band_idx], on_pe[band_idx],
+            self.h[band_idx], self.R_r[band_idx], self.alpha,
+        )
+        moved = np.zeros(nv, dtype=bool)
+        moved[band_idx] = np.any(y[band_idx] != x[band_idx], axis=1)
+        problems = self._check_output(y, near_kept, in_kept)
         raise_collective(comm, problems)
         near_cells = near_cells.astype(np.int32)
         raise_collective(comm, _check_containment(self.background, boundary, near_cells, comm))
         timings["map"] = time.perf_counter() - t2
         return StraightMap(
             sign=s, phi=phi, closest=closest, x=xp, y=y, on_positive_edge=on_pe, kept=kept,
-            num_relocated=num_relocated, timings=timings,
+            moved=moved, near_cells=near_all.astype(np.int32), num_relocated=num_relocated,
+            timings=timings,
         )
 
     def conform(self, boundary: Boundary) -> ConformingMesh:
@@ -360,7 +407,7 @@ class UniversalMesh:
         values = np.where(sm.on_positive_edge[vmap[fv]].all(axis=1), IMMERSED, OUTER)
         tags = dmesh.meshtags(sub, 1, facets.astype(np.int32), values.astype(np.int32))
         timings = dict(sm.timings, mesh=time.perf_counter() - t3)
-        moved = np.any(sm.y != self._x, axis=1)
+        moved = sm.moved
         return ConformingMesh(
             mesh=sub,
             facet_tags=tags,
@@ -441,7 +488,7 @@ class UniversalMesh:
         x = self._x
         cells = self._c2v[kc]
         moved = np.any(y[cells] != x[cells], axis=(1, 2))
-        cells = cells[moved]  # unmoved triangles keep their (checked) background shape
+        cells = cells[moved]  # unmoved triangles keep their background shape
         a0, a1 = signed_areas(x, cells), signed_areas(y, cells)
         d2 = cell_diameters(x, cells) ** 2
         inverted = (np.sign(a1) != np.sign(a0)) | (np.abs(a1) <= 1e-10 * d2)

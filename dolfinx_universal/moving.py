@@ -6,6 +6,7 @@ import contextlib
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from functools import cached_property
 
 from mpi4py import MPI
 
@@ -17,9 +18,10 @@ from dolfinx import fem
 from dolfinx import mesh as dmesh
 
 from .boundaries import Boundary
+from .classify import interior_angles
 from .conform import UniversalMesh
 from .curved import MAPS, jacobian_ratio, map_nodes
-from .quality import cell_quality
+from .quality import cell_quality, edge_ratio, radius_ratio
 from .validation import collective_call, raise_collective, vertex_reduce, where
 
 __all__ = ["MovingDomain", "StepReport", "count_jit_compilations"]
@@ -106,6 +108,7 @@ class MovingDomain:
         self._c2v = self.universal._c2v
         self._c2f = self.universal._c2f
         self._dirty = np.zeros(len(self._c2v), dtype=bool)
+        self._kept = np.zeros(len(self._c2v), dtype=bool)  # as the indicator: 0
         Q0 = fem.functionspace(self.mesh, ("DG", 0))
         self.active = fem.Function(Q0, name="active")
         """Cell indicator of ``T_h^sub``: 1 inside the current domain, 0 outside."""
@@ -128,19 +131,23 @@ class MovingDomain:
             On every rank if the domain cannot be meshed (nothing is changed then).
         """
         t0 = time.perf_counter()
-        um = self.universal
-        sm = um.straight_map(boundary)
+        sm = self.universal.straight_map(boundary)
         t1 = time.perf_counter()
         c2v = self._c2v
-        moved_vertex = np.any(sm.y != um._x, axis=1)
-        near = moved_vertex[c2v].any(axis=1) | ((sm.sign[c2v] > 0).sum(axis=1) == 2)
-        redo = np.flatnonzero(near | self._dirty)
+        # Cells to rewrite: those near Gamma now, and those near it at the previous step
+        # (restored to their straight background shape if they are no longer near).
+        # Cells whose activity changed away from Gamma (a large jump of the body) are
+        # rewritten too, to set their indicator.
+        near = np.zeros(len(c2v), dtype=bool)
+        near[sm.near_cells] = True
+        redo = np.flatnonzero(near | self._dirty | (sm.kept != self._kept))
+        cells = c2v[redo]
         nodes = collective_call(
-            self.comm, "the curved map", map_nodes, c2v[redo], sm.y, sm.x, sm.sign, self.degree,
+            self.comm, "the curved map", map_nodes, cells, sm.y, sm.x, sm.sign, self.degree,
             self._kind, boundary.closest_point,
         )
-        # Validity of the curved (positively cut) active triangles.
-        cut = np.flatnonzero((sm.sign[c2v[redo]] > 0).sum(axis=1) == 2)
+        kept = sm.kept[redo]
+        cut = np.flatnonzero(kept & ((sm.sign[cells] > 0).sum(axis=1) == 2))
         ratio = jacobian_ratio(nodes[cut], self.degree) if self.degree > 1 else np.ones(0)
         bad = ratio <= 0
         raise_collective(
@@ -149,26 +156,20 @@ class MovingDomain:
              f"{where(nodes[cut[bad]].mean(axis=1))}: refine the background there"]
             if bad.any() else [],
         )
-        # Write the nodes in place: cells moved now, and cells moved before (restored).
-        # Inactive cells first: on Gamma_h the active cell's curved nodes must win.
+        # Write the nodes in place; inactive cells first, so that on Gamma_h the active
+        # cell's curved nodes win.
         x = self.mesh.geometry.x
-        order = np.argsort(sm.kept[redo], kind="stable")
+        order = np.argsort(kept, kind="stable")
         x[self._dofmap[redo[order]].ravel(), :2] = nodes[order].reshape(-1, 2)
-        self._dirty = near
-        kept = sm.kept
-        self.active.x.array[self._cell_dof] = kept.astype(np.float64)
-        self.active_cells = np.flatnonzero(kept).astype(np.int32)
-        pc = np.flatnonzero(kept & ((sm.sign[c2v] > 0).sum(axis=1) == 2))
-        k = np.argmin(sm.sign[c2v[pc]], axis=1)
-        self.immersed_facets = np.unique(self._c2f[pc, k]).astype(np.int32)
+        self._dirty, self._kept = near, sm.kept
+        self.active.x.array[self._cell_dof[redo]] = kept.astype(np.float64)
+        self.active_cells = np.flatnonzero(sm.kept).astype(np.int32)
+        k = np.argmin(sm.sign[cells[cut]], axis=1)
+        self.immersed_facets = np.unique(self._c2f[redo[cut], k]).astype(np.int32)
         self.boundary = boundary
-        self._sign, self._y, self._xb = sm.sign, sm.y, sm.x
         t2 = time.perf_counter()
 
-        owned_kept = np.flatnonzero(kept[: self._nco])
-        quality = cell_quality(
-            self.comm, sm.y, um._x, c2v[owned_kept], sm.sign, moved_vertex
-        )
+        quality = self._quality(sm, near)
         timings = dict(sm.timings, geometry=t2 - t1, total=t2 - t0)
         report = StepReport(
             step=len(self.steps),
@@ -182,6 +183,40 @@ class MovingDomain:
         )
         self.steps.append(report)
         return report
+
+    def _quality(self, sm, near: npt.NDArray[np.bool_]) -> dict[str, float | int]:
+        """Quality of the active triangles: computed near Gamma, background values elsewhere
+        (the triangles away from Gamma are unmoved and have all vertices inside)."""
+        nco, c2v = self._nco, self._c2v
+        kept = sm.kept[:nco]
+        near_kept = np.flatnonzero(kept & near[:nco])
+        rep = cell_quality(self.comm, sm.y, self.universal._x, c2v[near_kept], sm.sign, sm.moved)
+        far = kept & ~near[:nco]
+        b = self._background_quality
+        red = self.comm.allreduce
+        n_far = red(int(np.count_nonzero(far)))
+        if n_far:
+            def ext(values, op, empty):
+                return red(float(op(values[far])) if far.any() else empty,
+                           op=MPI.MIN if op is np.min else MPI.MAX)
+
+            rep["theta_min_deg"] = min(rep["theta_min_deg"], ext(b["theta_min"], np.min, 180.0))
+            rep["theta_max_deg"] = max(rep["theta_max_deg"], ext(b["theta_max"], np.max, 0.0))
+            rep["q_max"] = max(rep["q_max"], ext(b["q"], np.max, 0.0))
+            rep["Q3_max"] = max(rep["Q3_max"], ext(b["Q"], np.max, 0.0))
+            rep["min_area_ratio"] = min(rep["min_area_ratio"], 1.0)
+            rep["n_cells"] += n_far
+            rep["n_unaltered"] += n_far
+            rep["percent_unaltered"] = 100.0 * rep["n_unaltered"] / max(rep["n_cells"], 1)
+        return rep
+
+    @cached_property
+    def _background_quality(self) -> dict[str, npt.NDArray[np.float64]]:
+        """Per-cell quality of the owned background triangles."""
+        x, cells = self.universal._x, self._c2v[: self._nco]
+        ang = np.degrees(interior_angles(x, cells))
+        return {"theta_min": ang.min(axis=1), "theta_max": ang.max(axis=1),
+                "q": radius_ratio(x, cells), "Q": edge_ratio(x, cells)}
 
     # -- what forms and boundary conditions need --------------------------------------------
 

@@ -199,7 +199,8 @@ def test_errors_raised_on_every_rank():
         "try:\n"
         "    du.conform(bg, du.Circle((0.9, 0.0), 0.5))\n"
         "except du.MeshingError as e:\n"
-        "    print('raised on rank', MPI.COMM_WORLD.rank, flush=True)\n"
+        "    import sys\n"
+        "    sys.stdout.write(f'raised on rank {MPI.COMM_WORLD.rank}\\n')\n"
     )
     for n in (2, 3):
         out = run_mpi(n, ["-c", code], timeout=120).stdout
