@@ -19,6 +19,7 @@
 # Dirichlet data are interpolated at the boundary nodes, which lie exactly on $\Gamma$.
 #
 # Run with `python demos/poisson_convergence.py [--quick] [--out DIR]`, also under mpirun.
+# The full study takes about three minutes on one core.
 
 # +
 from __future__ import annotations
@@ -103,9 +104,10 @@ maps = [("I", 0), ("I~", 0), ("G", 2)]
 
 
 def num_levels(k: int) -> int:
+    """Five halvings of h0 (six meshes) up to k = 3, four for k = 4 (1.6e5 P4 dofs)."""
     if args.quick:
         return 3
-    return 6 if k <= 2 else 5
+    return 6 if k <= 3 else 5
 
 
 rows = []
