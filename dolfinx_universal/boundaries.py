@@ -66,6 +66,13 @@ def _positive(value: float, name: str) -> float:
     return value
 
 
+def _distance(distance: float) -> float:
+    d = float(distance)
+    if not (np.isfinite(d) and d >= 0):
+        raise ValueError(f"distance must be a finite number >= 0, got {distance}")
+    return d
+
+
 def _call(fn: ArrayFn, arg: Float, shape: tuple[int, ...]) -> Float:
     """``fn(arg)`` as a float64 array of the given shape (scalars are broadcast)."""
     return np.broadcast_to(np.asarray(fn(arg), dtype=np.float64), shape).copy()
@@ -287,21 +294,32 @@ class _Grid:
 class Boundary(abc.ABC):
     """The boundary Gamma (one or several closed C2 curves) of an open planar domain Omega.
 
-    Points are arrays ``(n, 2)`` or ``(n, 3)`` (only the first two columns are used); results
-    are float64 arrays ``(n,)`` or ``(n, 2)``. Points on Gamma are outside (sign +1).
+    Point arguments are arrays ``(n, 2)`` or ``(n, 3)`` (only the first two columns are used,
+    ``n`` may be 0); results are float64 arrays ``(n,)`` or ``(n, 2)``. Non-finite points
+    raise :class:`ValueError`. Points on Gamma are outside Omega (sign +1).
     """
 
     @abc.abstractmethod
     def sign(self, x: npt.ArrayLike) -> Float:
-        """-1.0 for points of ``x (n, 2)`` in Omega, +1.0 otherwise (on Gamma too), ``(n,)``."""
+        """Exact classification of points.
+
+        Parameters
+        ----------
+        x
+            Points ``(n, 2)``.
+
+        Returns
+        -------
+        ``(n,)``: -1.0 in Omega, +1.0 outside or on Gamma.
+        """
 
     @abc.abstractmethod
     def closest_point(self, x: npt.ArrayLike) -> Float:
-        """Closest points ``pi(x)`` of Gamma to the points ``x (n, 2)``, shape ``(n, 2)``."""
+        """Closest points ``pi(x)`` of Gamma, ``(n, 2)``, for points ``x (n, 2)``."""
 
     @abc.abstractmethod
     def normal(self, y: npt.ArrayLike) -> Float:
-        """Unit outward normals of Omega at ``pi(y)`` for points ``y (n, 2)``, ``(n, 2)``."""
+        """Unit outward normals of Omega at ``pi(y)``, ``(n, 2)``, for points ``y (n, 2)``."""
 
     @abc.abstractmethod
     def bounding_box(self) -> Float:
@@ -309,40 +327,57 @@ class Boundary(abc.ABC):
 
     @abc.abstractmethod
     def sample(self, n: int) -> Float:
-        """``n`` roughly equally spaced points of Gamma, shape ``(n, 2)``."""
+        """``n`` roughly equally spaced points of Gamma, ``(n, 2)``."""
 
     @abc.abstractmethod
     def min_radius_of_curvature(self) -> float:
-        """Smallest radius of curvature of Gamma (``inf`` when straight)."""
+        """Smallest radius of curvature of Gamma (``inf`` where straight)."""
 
     def project(self, x: npt.ArrayLike) -> tuple[Float, Float]:
-        """Signed distances ``phi (n,)`` and closest points ``pi(x) (n, 2)`` of ``x (n, 2)``.
+        """Signed distances and closest points from a single projection.
 
-        ``phi = sign(x) |x - pi(x)|``, negative in Omega, from a single projection.
+        Parameters
+        ----------
+        x
+            Points ``(n, 2)``.
+
+        Returns
+        -------
+        phi
+            ``(n,)``: ``sign(x) |x - pi(x)|``, negative in Omega.
+        y
+            ``(n, 2)``: the closest points ``pi(x)``.
         """
         x = _as_points(x)
         y = self.closest_point(x)
         return self.sign(x) * _norm(x - y), y
 
     def signed_distance(self, x: npt.ArrayLike) -> Float:
-        """Signed distance ``phi (n,)`` to Gamma of the points ``x (n, 2)`` (< 0 in Omega)."""
+        """Signed distance ``phi (n,)`` to Gamma of points ``x (n, 2)``, negative in Omega."""
         return self.project(x)[0]
 
     def tangent(self, y: npt.ArrayLike) -> Float:
-        """Unit tangents ``(-n_y, n_x)`` at ``pi(y)``, shape ``(n, 2)``: Omega on their left."""
+        """Unit tangents ``(-n_y, n_x)`` at ``pi(y)``, ``(n, 2)``: Omega lies on their left."""
         return _rot90(self.normal(y))
 
     def near(self, x: npt.ArrayLike, distance: float) -> Bool:
-        """Mask ``(n,)`` of a superset of the points of ``x (n, 2)`` within ``distance`` of Gamma.
+        """Cheap superset of the points within ``distance`` of Gamma.
 
-        Points more than about ``distance`` + one sample spacing away are excluded: a grid
-        lower bound of the distance discards most points, the nearest dense sample of Gamma
-        (within ``distance + spacing`` for every point within ``distance``) settles the rest.
+        Parameters
+        ----------
+        x
+            Points ``(n, 2)``.
+        distance
+            Distance ``>= 0``.
+
+        Returns
+        -------
+        ``(n,)`` mask, true at every point with ``dist(x, Gamma) <= distance`` and possibly at
+        points up to about one sample spacing farther (a grid lower bound of the distance
+        discards most points; the nearest dense sample of Gamma, within ``distance + spacing``
+        of every point within ``distance``, settles the others).
         """
-        x = _as_points(x)
-        d = float(distance)
-        if not d >= 0 or not np.isfinite(d):
-            raise ValueError(f"distance must be a finite number >= 0, got {distance}")
+        x, d = _as_points(x), _distance(distance)
         mask = self._lower_bound(x) <= d
         if mask.any():
             g = self._grid
@@ -374,9 +409,17 @@ class Boundary(abc.ABC):
         return _Grid(self._loops, np.asarray(self.bounding_box(), dtype=np.float64))
 
 
-# ----------------------------------------------------------------------------- conics
+# ----------------------------------------------------------------------------- circle
 class Circle(Boundary):
-    """Omega = the open disc of the given ``center`` and ``radius``; all in closed form."""
+    """Omega = the open disc of the given ``center`` and ``radius``; all in closed form.
+
+    Parameters
+    ----------
+    center
+        Centre ``(2,)``.
+    radius
+        Radius ``> 0``. The centre itself projects onto ``center + (radius, 0)``.
+    """
 
     def __init__(self, center: npt.ArrayLike, radius: float) -> None:
         self.center = _vector(center, "center")
@@ -401,7 +444,7 @@ class Circle(Boundary):
         return self._direction(y)
 
     def near(self, x: npt.ArrayLike, distance: float) -> Bool:
-        return self._lower_bound(_as_points(x)) <= float(distance)
+        return self._lower_bound(_as_points(x)) <= _distance(distance)
 
     def _lower_bound(self, x: Float) -> Float:
         return np.abs(_norm(x - self.center) - self.radius)
@@ -419,72 +462,6 @@ class Circle(Boundary):
 
     def _length(self) -> float:
         return 2 * np.pi * self.radius
-
-
-class Ellipse(Boundary):
-    """Omega = the open ellipse of semi-axes ``a`` (along the rotated x axis) and ``b``.
-
-    The ellipse is rotated by ``angle`` radians about ``center``. The closest point is found by
-    a bracketed Newton method on the angular parameter in the quadrant of the point (where
-    it is the unique stationary point), so it is global and exact for every point.
-    """
-
-    def __init__(self, center: npt.ArrayLike, a: float, b: float, angle: float = 0.0) -> None:
-        self.center = _vector(center, "center")
-        self.a, self.b = _positive(a, "a"), _positive(b, "b")
-        self.angle = float(angle)
-        self._cs = np.cos(self.angle), np.sin(self.angle)
-
-    def _local(self, x: npt.ArrayLike) -> Float:
-        return _rotate(_as_points(x) - self.center, self._cs[0], -self._cs[1])
-
-    def sign(self, x: npt.ArrayLike) -> Float:
-        p = self._local(x)
-        return np.where((p[:, 0] / self.a) ** 2 + (p[:, 1] / self.b) ** 2 < 1, -1.0, 1.0)
-
-    def _parameter(self, x: npt.ArrayLike) -> Float:
-        """Angular parameter ``t`` of the closest point ``(a cos t, b sin t)`` (local frame)."""
-        p = self._local(x)
-        q = np.maximum(np.abs(p), np.finfo(np.float64).tiny)  # first quadrant, off the axes
-        a, b = self.a, self.b
-
-        def g(t: Float, i: Int) -> tuple[Float, Float]:
-            s, c = np.sin(t), np.cos(t)
-            e = b * b - a * a
-            return e * s * c + a * q[i, 0] * s - b * q[i, 1] * c, (
-                e * (c * c - s * s) + a * q[i, 0] * c + b * q[i, 1] * s
-            )
-
-        n = len(p)
-        t0 = np.arctan2(a * q[:, 1], b * q[:, 0])
-        t = _bracketed_newton(g, t0, np.zeros(n), np.full(n, np.pi / 2), 4 * _EPS)
-        t = np.where(p[:, 0] < 0, np.pi - t, t)
-        return np.where(p[:, 1] < 0, -t, t)
-
-    def _point(self, t: Float) -> Float:
-        p = np.column_stack([self.a * np.cos(t), self.b * np.sin(t)])
-        return self.center + _rotate(p, *self._cs)
-
-    def closest_point(self, x: npt.ArrayLike) -> Float:
-        return self._point(self._parameter(x))
-
-    def normal(self, y: npt.ArrayLike) -> Float:
-        t = self._parameter(y)
-        return _unit(_rotate(np.column_stack([self.b * np.cos(t), self.a * np.sin(t)]), *self._cs))
-
-    def bounding_box(self) -> Float:
-        c, s = np.cos(self.angle), np.sin(self.angle)
-        w = np.hypot([self.a * c, self.a * s], [self.b * s, self.b * c]) * (1 + 4 * _EPS)
-        return np.array([self.center - w, self.center + w])
-
-    def sample(self, n: int) -> Float:
-        t = np.linspace(0.0, 2 * np.pi, max(4 * n, 4096), endpoint=False)
-        s = np.concatenate([[0.0], np.cumsum(_chords(self._point(t)))])
-        u = np.arange(n) * (s[-1] / max(n, 1))
-        return self._point(np.interp(u, s, np.append(t, 2 * np.pi)))
-
-    def min_radius_of_curvature(self) -> float:
-        return min(self.a, self.b) ** 2 / max(self.a, self.b)
 
 
 # ----------------------------------------------------------------------------- level sets
@@ -506,6 +483,19 @@ class ImplicitCurve(Boundary):
     method on the Lagrange system ``y - x + lam grad f(y) = 0, f(y) = 0`` (``lam`` eliminated
     by its least-squares value), with steps limited to one sample spacing and a descent step
     where the Newton step would go uphill; :class:`RuntimeError` where it does not converge.
+
+    Parameters
+    ----------
+    f, grad, hess
+        Level-set function and its derivatives, vectorised as above.
+    bbox
+        ``[[xmin, ymin], [xmax, ymax]]`` containing Gamma (required).
+    inside_negative
+        Omega is ``{f < 0}`` if true, ``{f > 0}`` otherwise.
+    resolution
+        Cells of the sampling grid along each side of ``bbox``.
+    n_samples
+        Number of samples used to start the projections.
     """
 
     def __init__(
@@ -526,6 +516,8 @@ class ImplicitCurve(Boundary):
         self._box = box
         self._orient = 1.0 if inside_negative else -1.0
         self.resolution, self.n_samples = int(resolution), int(n_samples)
+        if self.resolution < 16 or self.n_samples < 64:
+            raise ValueError("resolution must be at least 16 and n_samples at least 64")
         self._scale = float(_norm(box[1] - box[0]))
         self.fd_step = 6e-6 * self._scale
 
@@ -711,15 +703,23 @@ class ParametricCurve(Boundary):
     The outward normal is ``N = (c'_y, -c'_x) / |c'|``.
 
     Closest points: the curve is sampled at ``n_samples`` equal parameter steps ``dt``; every
-    point gets the candidate samples of :func:`_candidates` (usually just the nearest one)
-    and, for each, a bracketed safeguarded Newton method on ``g(t) = c'(t).(c(t) - x) = 0`` in
+    point gets the candidate samples of :func:`_candidates` (the discrete local minima of the
+    sample distances near the smallest one: usually just the nearest sample) and, for each, a
+    bracketed safeguarded Newton method on ``g(t) = c'(t).(c(t) - x) = 0`` in
     ``[t_i - dt, t_i + dt]`` (both neighbouring sample intervals); the nearest result wins.
-    Assumption (dense sampling): the distance to ``x`` has at most one local minimum per pair
-    of sample intervals and consecutive samples are less than 1.5 chords apart along the
-    curve; raise ``n_samples`` for curves with features finer than ``length / n_samples``.
+    Assumption (dense sampling): the distance to ``x`` is unimodal over any two neighbouring
+    sample intervals that hold a local minimum, and the arc between consecutive samples is
+    less than 1.5 times their chord; raise ``n_samples`` for curves with features finer than
+    ``length / n_samples``.
 
-    Sign: exact and O(1) away from Gamma (see :class:`_Grid`), ``sign((x - pi(x)).N)`` in the
-    grid cells that Gamma crosses.
+    Sign: exact and O(1) away from Gamma (see :class:`_Grid`); ``sign((x - pi(x)).N)`` in the
+    grid cells that Gamma crosses (exact: the open segment from ``x`` to its closest point
+    does not meet Gamma).
+
+    Parameters
+    ----------
+    n_samples
+        Number of samples (at least 64).
     """
 
     period: float
@@ -836,15 +836,6 @@ class ParametricCurve(Boundary):
         kappa = np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / _norm(d1) ** 3
         return float(1 / kappa.max()) if kappa.max() > 0 else np.inf
 
-    def _loops(self, spacing: float) -> list[Float]:
-        n = self.n_samples
-        while True:
-            p = self.point(np.arange(n) * (self.period / n))
-            longest = float(_chords(p).max())
-            if longest <= spacing:
-                return [p]
-            n = int(np.ceil(n * longest / spacing * 1.1))
-
 
 class PeriodicSpline(ParametricCurve):
     """Closed periodic cubic spline through ``points (m, 2)``, chord-length parametrised.
@@ -852,7 +843,16 @@ class PeriodicSpline(ParametricCurve):
     A last point repeating the first is dropped. Clockwise points are reversed with a
     :class:`UserWarning` when ``orientation="auto"`` and rejected when ``"ccw"``. Raises
     :class:`ValueError` for fewer than 4 distinct points, non-finite or repeated consecutive
-    points, and for a spline that intersects itself.
+    points, and for a spline that intersects itself (tested on a dense polyline).
+
+    Parameters
+    ----------
+    points
+        Interpolated points ``(m, 2)``, in order around the domain.
+    orientation
+        ``"auto"`` (reverse clockwise points) or ``"ccw"`` (require counter-clockwise).
+    n_samples
+        See :class:`ParametricCurve`.
     """
 
     def __init__(
@@ -896,7 +896,6 @@ class PeriodicSpline(ParametricCurve):
         self.points = p
         self.period = float(knots[-1])
         self._spline = CubicSpline(knots, closed, bc_type="periodic", axis=0)
-        self._d1, self._d2 = self._spline.derivative(1), self._spline.derivative(2)
 
     def _check_simple(self) -> None:
         """Raise if non-adjacent edges of a dense polyline of the spline intersect."""
@@ -939,10 +938,10 @@ class PeriodicSpline(ParametricCurve):
         return self._spline(np.mod(t, self.period))
 
     def derivative(self, t: Float) -> Float:
-        return self._d1(np.mod(t, self.period))
+        return self._spline(np.mod(t, self.period), 1)
 
     def second_derivative(self, t: Float) -> Float:
-        return self._d2(np.mod(t, self.period))
+        return self._spline(np.mod(t, self.period), 2)
 
     @classmethod
     def from_file(cls, path: str | Path, **kwargs: object) -> PeriodicSpline:
@@ -962,19 +961,15 @@ class PeriodicSpline(ParametricCurve):
                 data = data["points"]
             pts = np.asarray(data, dtype=np.float64)
         else:
-            rows: list[list[float]] = []
-            header_allowed = True
-            for k, line in enumerate(text.splitlines(), start=1):
-                line = line.split("#")[0].strip()
-                if not line:
-                    continue
+            rows = [r.split("#")[0].replace(",", " ").split() for r in text.splitlines()]
+            rows = [r for r in rows if r]
+            for k in range(2):  # a first line that is not numbers is a header
                 try:
-                    rows.append([float(v) for v in line.replace(",", " ").split()])
-                except ValueError:
-                    if not header_allowed:
-                        raise ValueError(f"{path}, line {k}: not two numbers: {line!r}") from None
-                header_allowed = False
-            pts = np.asarray(rows, dtype=np.float64) if rows else np.empty((0, 2))
+                    pts = np.array([[float(v) for v in r] for r in rows[k:]] or np.empty((0, 2)))
+                    break
+                except ValueError as e:
+                    if k:
+                        raise ValueError(f"{path}: {e}") from None
         if pts.ndim != 2 or pts.shape[1] != 2:
             raise ValueError(f"{path}: expected two columns x, y, got an array {pts.shape}")
         return cls(pts, **kwargs)  # type: ignore[arg-type]
@@ -985,6 +980,15 @@ class PolarCurve(ParametricCurve):
 
     ``r``, ``dr``, ``d2r`` map angles ``(m,)`` to ``(m,)``; ``r`` must be positive (checked on
     ``n_samples`` angles). The sign is the exact test ``|x - center| < r(atan2)``.
+
+    Parameters
+    ----------
+    r, dr, d2r
+        Radius and its first two derivatives, vectorised over angles.
+    center
+        Pole ``(2,)``.
+    n_samples
+        See :class:`ParametricCurve`.
     """
 
     def __init__(
@@ -1030,12 +1034,93 @@ class PolarCurve(ParametricCurve):
     project = Boundary.project
 
 
+class Ellipse(ParametricCurve):
+    """Omega = the open ellipse of semi-axes ``a`` (along the rotated x axis) and ``b``.
+
+    The ellipse is rotated by ``angle`` radians about ``center``; ``t`` is the angular
+    parameter of ``(a cos t, b sin t)``. The sign is analytic. The closest point is found by
+    a bracketed Newton method on ``t`` in the quadrant of the point, where it is the unique
+    stationary point: global and exact for every point.
+
+    Parameters
+    ----------
+    center
+        Centre ``(2,)``.
+    a, b
+        Semi-axes ``> 0``.
+    angle
+        Rotation in radians (counter-clockwise).
+    n_samples
+        See :class:`ParametricCurve` (used by :meth:`near` and :meth:`sample`).
+    """
+
+    def __init__(
+        self, center: npt.ArrayLike, a: float, b: float, angle: float = 0.0, n_samples: int = 4096
+    ) -> None:
+        super().__init__(n_samples)
+        self.center = _vector(center, "center")
+        self.a, self.b = _positive(a, "a"), _positive(b, "b")
+        self.angle, self.period = float(angle), 2 * np.pi
+        self._cs = np.cos(self.angle), np.sin(self.angle)
+
+    def point(self, t: Float) -> Float:
+        p = np.column_stack([self.a * np.cos(t), self.b * np.sin(t)])
+        return self.center + _rotate(p, *self._cs)
+
+    def derivative(self, t: Float) -> Float:
+        return _rotate(np.column_stack([-self.a * np.sin(t), self.b * np.cos(t)]), *self._cs)
+
+    def second_derivative(self, t: Float) -> Float:
+        return self.center - self.point(t)
+
+    def _local(self, x: npt.ArrayLike) -> Float:
+        return _rotate(_as_points(x) - self.center, self._cs[0], -self._cs[1])
+
+    def sign(self, x: npt.ArrayLike) -> Float:
+        p = self._local(x)
+        return np.where((p[:, 0] / self.a) ** 2 + (p[:, 1] / self.b) ** 2 < 1, -1.0, 1.0)
+
+    project = Boundary.project
+
+    def _project(self, x: Float) -> tuple[Float, Float]:
+        p = self._local(x)
+        q = np.maximum(np.abs(p), np.finfo(np.float64).tiny)  # first quadrant, off the axes
+        a, b, e = self.a, self.b, self.b**2 - self.a**2
+
+        def g(t: Float, i: Int) -> tuple[Float, Float]:
+            s, c = np.sin(t), np.cos(t)
+            return e * s * c + a * q[i, 0] * s - b * q[i, 1] * c, (
+                e * (c * c - s * s) + a * q[i, 0] * c + b * q[i, 1] * s
+            )
+
+        n = len(p)
+        t0 = np.arctan2(a * q[:, 1], b * q[:, 0])
+        t = _bracketed_newton(g, t0, np.zeros(n), np.full(n, np.pi / 2), 4 * _EPS)
+        t = np.where(p[:, 0] < 0, np.pi - t, t)
+        t = np.mod(np.where(p[:, 1] < 0, -t, t), self.period)
+        return t, self.point(t)
+
+    def min_radius_of_curvature(self) -> float:
+        return min(self.a, self.b) ** 2 / max(self.a, self.b)
+
+
 # ----------------------------------------------------------------------------- compositions
 class RigidMotion(Boundary):
     """``base`` rotated by ``angle`` about ``center``, then translated by ``translation``.
 
     ``y -> center + R(angle) (y - center) + translation``; everything is delegated to ``base``
     through the inverse motion (normals and tangents rotated).
+
+    Parameters
+    ----------
+    base
+        The boundary in its reference position.
+    angle
+        Rotation in radians (counter-clockwise).
+    center
+        Centre of the rotation ``(2,)``.
+    translation
+        Translation ``(2,)`` applied after the rotation.
     """
 
     def __init__(
@@ -1110,6 +1195,13 @@ class Domain(Boundary):
     ``sign(x) = -1`` iff ``container.sign(x) == -1`` and ``body.sign(x) == +1`` for every
     body; a point exactly on a body's curve (measure zero) therefore counts as in Omega.
     Normals point out of Omega: into the bodies.
+
+    Parameters
+    ----------
+    container
+        Boundary of the region containing Omega, or None (the whole plane).
+    bodies
+        Boundaries of the solids removed from it.
     """
 
     def __init__(self, container: Boundary | None = None, bodies: Sequence[Boundary] = ()) -> None:
@@ -1143,11 +1235,11 @@ class Domain(Boundary):
         """
         comps = [b for b, _ in self.components]
         lb = np.array([b._lower_bound(x) for b in comps]).reshape(len(comps), len(x))
-        idx = lb.argmin(axis=0) if len(x) else np.zeros(0, dtype=np.intp)
-        y, d = np.empty((len(x), 2)), np.full(len(x), np.inf)
+        first = lb.argmin(axis=0) if len(x) else np.zeros(0, dtype=np.intp)
+        idx, y, d = first.copy(), np.empty((len(x), 2)), np.full(len(x), np.inf)
         for rnd in range(2):
             for k, b in enumerate(comps):
-                m = np.flatnonzero((idx == k) if rnd == 0 else (lb[k] < d) & (idx != k))
+                m = np.flatnonzero((first == k) if rnd == 0 else (lb[k] < d) & (first != k))
                 if m.size:
                     yk = b.closest_point(x[m])
                     dk = _norm(x[m] - yk)

@@ -302,6 +302,9 @@ def test_empty_and_three_columns(name):
     assert b.sign(e).shape == (0,) and b.signed_distance(e).shape == (0,)
     assert b.closest_point(e).shape == (0, 2) and b.normal(e).shape == (0, 2)
     assert b.near(e, 0.1).shape == (0,) and b.project(e)[1].shape == (0, 2)
+    assert b.sample(0).shape == (0, 2) and b.tangent(e).shape == (0, 2)
+    with pytest.raises(ValueError, match="distance"):
+        b.near(e, -1.0)
     x = np.random.default_rng(1).uniform(-2, 2, (50, 2))
     x3 = np.column_stack([x, np.full(50, 7.0)])
     np.testing.assert_array_equal(b.project(x3)[0], b.project(x)[0])
@@ -408,7 +411,7 @@ def test_spline_from_file(tmp_path):
         (tmp_path / name).write_text(text)
         np.testing.assert_array_equal(PeriodicSpline.from_file(tmp_path / name).points, ref.points)
     (tmp_path / "bad.csv").write_text("x,y\n1,2\nfoo,bar\n")
-    with pytest.raises(ValueError, match="line 3"):
+    with pytest.raises(ValueError, match="foo"):
         PeriodicSpline.from_file(tmp_path / "bad.csv")
     (tmp_path / "bad.json").write_text('{"pts": []}')
     with pytest.raises(ValueError, match="points"):
@@ -453,3 +456,14 @@ def test_domain_components():
 def test_boundary_is_abstract():
     with pytest.raises(TypeError):
         Boundary()  # type: ignore[abstract]
+
+
+def test_implicit_newton_failure_is_reported():
+    noise = np.random.default_rng(5)
+
+    def noisy_grad(y):  # a wrong gradient: Newton's method cannot settle
+        return 2 * y + 1e-3 * noise.standard_normal(y.shape)
+
+    b = ImplicitCurve(lambda y: (y**2).sum(axis=1) - 1, noisy_grad, bbox=[[-1.1, -1.1], [1.1, 1.1]])
+    with pytest.raises(RuntimeError, match=r"did not converge for 2 point\(s\), e.g. x=\[0.5"):
+        b.closest_point([[0.5, 0.1], [0.1, 0.9]])
