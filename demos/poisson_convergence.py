@@ -37,7 +37,7 @@ from dolfinx import fem
 from dolfinx.fem.petsc import LinearProblem
 
 import dolfinx_universal as du
-from dolfinx_universal.plotting import plot_conforming, save
+from dolfinx_universal.plotting import gather_cells, plot_conforming, save
 
 parser = argparse.ArgumentParser(description="Poisson convergence on curved universal meshes")
 parser.add_argument("--quick", action="store_true", help="three levels instead of five/six")
@@ -129,7 +129,7 @@ for level in range(max(num_levels(k) for k in args.degrees)):
                          "n_cells": n_cells, "L2": l2, "H1": h1})
             log(f"level {level} h={h:.5f} map={name:2s} k={k} q={k + extra} dofs={ndofs:7d} "
                 f"L2={l2:.3e} H1={h1:.3e}")
-            if level == 1 and name == "I" and k in (2, 3):
+            if level == 0 and name == "I" and k in (2, 3):
                 curved_for_figure[k] = (cm, curved)
 log(f"study took {time.perf_counter() - t_start:.1f} s")
 # -
@@ -158,7 +158,7 @@ for name, _ in maps:
 # ## Figures
 #
 # Errors against $h$ for every degree (one panel per map), and close-ups of the curved
-# triangles near the boundary for $k = 2$ and $k = 3$.
+# triangles near the boundary for $k = 2$ and $k = 3$ (dots: their geometry nodes).
 
 # +
 if comm.rank == 0:
@@ -189,17 +189,18 @@ if comm.rank == 0:
         np.atleast_1d(axes)[0].legend()
         save(fig, args.out / f"convergence_{norm}.png")
 
-figs = {}
 for k in sorted(curved_for_figure):
     cm, curved = curved_for_figure[k]
+    nodes, cut = gather_cells(curved.mesh, values=cm.positively_cut)
     if comm.rank == 0:
         fig, ax = plt.subplots(figsize=(5.5, 5.5))
     else:
         fig, ax = None, None
-    plot_conforming(ax, cm, show_background=False, mesh=curved.mesh,
-                    title=f"curved cells near the boundary, map I, q = {k}", linewidth=0.6)
+    plot_conforming(ax, cm, show_background=False, mesh=curved.mesh, linewidth=0.7,
+                    title=f"curved triangles on the coarsest mesh, map I, q = {k}")
     if comm.rank == 0:
-        ax.set_xlim(0.45, 1.02), ax.set_ylim(0.35, 0.92)
+        ax.plot(*nodes[cut.astype(bool)].reshape(-1, 2).T, "o", ms=2.5, color="k", zorder=5)
+        ax.set_xlim(0.3, 1.05), ax.set_ylim(0.25, 1.0)
         save(fig, args.out / f"closeup_k{k}.png")
 # -
 
