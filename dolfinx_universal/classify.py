@@ -35,7 +35,8 @@ def positively_cut(s: Float, cells: Int) -> Bool:
 
 def kept_cells(s: Float, cells: Int) -> Bool:
     """Cells of ``T_h^sub``: ``s = -1`` at one vertex or more, shape ``(num_cells,)``."""
-    return (s[cells] < 0).any(axis=1)
+    neg = s < 0
+    return neg[cells[:, 0]] | neg[cells[:, 1]] | neg[cells[:, 2]]
 
 
 def positive_edges(s: Float, cells: Int) -> tuple[Int, Int, Int]:

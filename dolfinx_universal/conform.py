@@ -143,7 +143,7 @@ def _incidence(imv, vertices: npt.NDArray, n: int) -> npt.NDArray[np.float64]:
 
 def _check_containment(background, boundary, cells, comm) -> list[str]:
     """Points of Gamma that lie in no background cell (collective)."""
-    pts = boundary.sample(2000)
+    pts = boundary.sample(512)
     pts3 = np.zeros((len(pts), 3))
     pts3[:, :2] = pts
     tree = dgeometry.bb_tree(background, 2, entities=cells.astype(np.int32))
