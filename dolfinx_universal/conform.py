@@ -339,6 +339,11 @@ class UniversalMesh:
             else [],
         )
         phi[band_idx], closest[band_idx] = phi_b, y_b
+        # Points on Gamma count as outside (SPEC §2). A vertex on Gamma up to rounding that
+        # the sign test put inside would be relaxed inwards while its neighbours snap onto
+        # it; treat it as on Gamma.
+        on_gamma = band_idx[(phi_b <= 0) & (phi_b > -1e-10 * self.h[band_idx])]
+        s[on_gamma], phi[on_gamma] = 1.0, 0.0
         normal[band_idx] = collective_call(comm, "the normal", boundary.normal, y_b)
         timings["project"] = time.perf_counter() - t1
 

@@ -12,7 +12,7 @@ from dolfinx import fem
 from dolfinx import mesh as dmesh
 
 import dolfinx_universal as du
-from dolfinx_universal.background import create_background_mesh
+from dolfinx_universal.background import create_background_mesh, equilateral_triangulation
 from dolfinx_universal.classify import signed_areas
 
 comm = MPI.COMM_WORLD
@@ -205,3 +205,16 @@ def test_errors_raised_on_every_rank():
     for n in (2, 3):
         out = run_mpi(n, ["-c", code], timeout=120).stdout
         assert sorted(out.split("\n")[:-1]) == [f"raised on rank {r}" for r in range(n)]
+
+
+@pytest.mark.parametrize("hole", [False, True])
+def test_vertices_exactly_on_gamma(hole):
+    """A circle centred at a lattice vertex with radius 8h passes through six vertices; the
+    sign test rounds some of them inside. They count as on Gamma (SPEC §2): a valid mesh."""
+    h = 0.0125
+    x, cells = equilateral_triangulation([[0, 0], [1, 1]], h)
+    bg = create_background_mesh(comm, x, cells)
+    centre = x[np.argmin(np.linalg.norm(x - [0.4, 0.4], axis=1))]
+    circle = du.Circle(centre, 8 * h)
+    cm = du.conform(bg, du.Domain(None, [circle]) if hole else circle, eta=0.0)
+    assert du.quality_report(cm)["n_inverted"] == 0
