@@ -1,0 +1,643 @@
+"""Graded acute background meshes: corner-balanced quadtrees tiled with acute stencils."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+
+from mpi4py import MPI
+
+import numpy as np
+import numpy.typing as npt
+from dolfinx import mesh as dmesh
+
+from .background import create_background_mesh
+
+__all__ = [
+    "EDGE_FACTOR",
+    "STENCIL_ANGLE_RANGE",
+    "acute_quadtree_triangulation",
+    "graded_mesh",
+    "local_size",
+]
+
+SizeLike = float | Callable[[npt.NDArray[np.float64]], npt.ArrayLike]
+
+# ---------------------------------------------------------------------------------------------
+# Stencils
+# ---------------------------------------------------------------------------------------------
+#
+# Every leaf of the quadtree is the unit square [0, 1]^2 scaled by its side s. Its boundary
+# points are
+#
+#   * the four corners and the four side midpoints (always), and
+#   * for every *fine* corner (a corner touched by a leaf smaller than this one), the two points
+#     at distance s/4 from that corner along the two sides meeting there.
+#
+# A leaf is therefore described by a 4-bit corner mask (bit c: corner c is fine, corners
+# counter-clockwise from (0, 0)); the boundary point sets of neighbouring leaves agree (see
+# ``_leaf_corner_masks``), so the stencils glue into a conforming triangulation. Because the
+# two sides meeting at a corner always carry their first point at the same distance (s/2, or
+# s/4 at a fine corner), no stencil has to resolve a 1:2 jump of the boundary spacing at a
+# 90-degree corner; the jumps sit at side midpoints, where 180 degrees are available.
+#
+# Up to rotation there are six masks: 0, 1, 3, 5, 7 and 15.
+#
+# * Mask 0 is exact: the Steiner points (a, a), (1-b, b), (1-a, 1-a), (b, 1-b) with
+#   a = tan72 / (2 (1 + tan72)) and b = tan63 / (2 (1 + tan63)) (a pinwheel: the corner
+#   triangle (0,0), (1/2,0), (a,a) has angles 45, 72, 63 and (1,0), (1/2,0), (1-b,b) has 45,
+#   63, 72; the rest follows by the quarter-turn symmetry) give twelve 45-63-72 triangles and
+#   an inner quadrilateral split into two 54-72-54 triangles.
+# * Mask 15 is four copies of mask 0 at half scale (the four quadrants).
+# * Masks 1, 3, 5 and 7 (one to three fine corners) were designed numerically, once, offline:
+#   the initial guess puts a half-scale mask-0 quadrant at every fine corner and the mask-0
+#   Steiner point at every other corner; the Steiner points were then optimised (simulated
+#   annealing over positions and number of points, each candidate triangulated by Delaunay,
+#   followed by SLSQP on the fixed connectivity) to minimise
+#   max(max_angle - 60, 0.6 (60 - min_angle)). The resulting coordinates and triangles are
+#   stored below; ``_check_stencil`` verifies them at import. An acute triangulation is the
+#   (unique) Delaunay triangulation of its vertices, so the stored connectivity is the only
+#   one these points admit.
+
+_TA, _TB = np.tan(np.radians(72.0)), np.tan(np.radians(63.0))
+_A, _B = _TA / (2.0 * (1.0 + _TA)), _TB / (2.0 * (1.0 + _TB))
+
+_CORNERS = np.array([[0, 0], [4, 0], [4, 4], [0, 4]])  # in quarter units
+_MIDS = np.array([[2, 0], [4, 2], [2, 4], [0, 2]])
+
+# Mask 0 in unit-square coordinates: 4 corners, 4 midpoints, 4 Steiner points.
+_MASK0_POINTS = np.vstack(
+    [
+        _CORNERS / 4.0,
+        _MIDS / 4.0,
+        [[_A, _A], [1.0 - _B, _B], [1.0 - _A, 1.0 - _A], [_B, 1.0 - _B]],
+    ]
+)
+_MASK0_CELLS = np.array(
+    [
+        [0, 4, 8], [0, 8, 7], [4, 1, 9], [1, 5, 9], [5, 2, 10], [2, 6, 10], [6, 3, 11],
+        [3, 7, 11], [4, 9, 8], [5, 10, 9], [6, 11, 10], [7, 8, 11], [8, 9, 10], [8, 10, 11],
+    ]
+)  # fmt: skip
+
+# Steiner points (unit square) and triangles (indices into boundary points, ordered as in
+# ``_boundary_points(mask)``, followed by the Steiner points) of the numerically designed
+# stencils. Filled in below.
+_DESIGNED: dict[int, tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]] = {}
+# <designed-stencils>
+# mask 1: 7 Steiner points, 22 triangles, angles in [36.93, 73.84]
+_DESIGNED[1] = (
+    np.array(
+        [
+            [0.19085818851785616, 0.14846351575404662],
+            [0.23703515574117004, 0.3684472962938206],
+            [0.29244492985506876, 0.6109262018162858],
+            [0.3502867531410259, 0.16398956095438808],
+            [0.40500648217180546, 0.40609091718986234],
+            [0.6403390244946627, 0.6409954748045801],
+            [0.6109262018162894, 0.29244492985506076],
+        ]
+    ),
+    np.array(
+        [
+            [0, 8, 10], [0, 10, 9], [1, 5, 16], [1, 16, 4], [2, 6, 15], [2, 15, 5],
+            [3, 7, 12], [3, 12, 6], [4, 13, 8], [4, 16, 13], [5, 15, 16], [6, 12, 15],
+            [7, 9, 11], [7, 11, 12], [8, 13, 10], [9, 10, 11], [10, 13, 11], [11, 13, 14],
+            [11, 14, 12], [12, 14, 15], [13, 16, 14], [14, 16, 15],
+        ]
+    ),
+)  # fmt: skip
+# mask 3: 10 Steiner points, 30 triangles, angles in [36.25, 74.25]
+_DESIGNED[3] = (
+    np.array(
+        [
+            [0.1599795948209661, 0.3388010536811326],
+            [0.17645132715977496, 0.20023952113582677],
+            [0.36047715430068866, 0.30715476470246916],
+            [0.3225196747137888, 0.6264561250533688],
+            [0.374660606918714, 0.16512582197721334],
+            [0.5432348544203046, 0.4143218020778834],
+            [0.6814313015094147, 0.6729723540665157],
+            [0.5679894968977436, 0.24109167022457972],
+            [0.8214660827957975, 0.3533182906220915],
+            [0.8462207252732279, 0.18008815876878467],
+        ]
+    ),
+    np.array(
+        [
+            [0, 8, 13], [0, 13, 9], [1, 10, 21], [1, 21, 11], [2, 6, 18], [2, 18, 5],
+            [3, 7, 15], [3, 15, 6], [4, 11, 19], [4, 16, 8], [4, 19, 16], [5, 18, 20],
+            [5, 20, 10], [6, 15, 18], [7, 9, 12], [7, 12, 15], [8, 16, 13], [9, 13, 12],
+            [10, 20, 21], [11, 21, 19], [12, 13, 14], [12, 14, 15], [13, 16, 14], [14, 16, 19],
+            [14, 17, 15], [14, 19, 17], [15, 17, 18], [17, 19, 20], [17, 20, 18], [19, 21, 20],
+        ]
+    ),
+)  # fmt: skip
+# mask 5: 10 Steiner points, 30 triangles, angles in [31.68, 76.99]
+_DESIGNED[5] = (
+    np.array(
+        [
+            [0.16446143826356432, 0.3708157016311027],
+            [0.20025837624942683, 0.1960996470179008],
+            [0.34721473173300926, 0.3662531968333789],
+            [0.2910248900867373, 0.6405020011863469],
+            [0.36730734609387566, 0.17232444888523307],
+            [0.6846326989166243, 0.7754955432716086],
+            [0.6962072045977057, 0.3228223411211696],
+            [0.6581573700591018, 0.5085342299941729],
+            [0.8574954002416916, 0.8154326176164925],
+            [0.8574954002416846, 0.7170766640147812],
+        ]
+    ),
+    np.array(
+        [
+            [0, 8, 13], [0, 13, 9], [1, 5, 18], [1, 18, 4], [2, 10, 20], [2, 20, 11],
+            [3, 7, 15], [3, 15, 6], [4, 16, 8], [4, 18, 16], [5, 11, 21], [5, 19, 18],
+            [5, 21, 19], [6, 15, 17], [6, 17, 10], [7, 9, 12], [7, 12, 15], [8, 16, 13],
+            [9, 13, 12], [10, 17, 20], [11, 20, 21], [12, 13, 14], [12, 14, 15], [13, 16, 14],
+            [14, 16, 18], [14, 18, 19], [14, 19, 15], [15, 19, 17], [17, 19, 21], [17, 21, 20],
+        ]
+    ),
+)  # fmt: skip
+# mask 7: 18 Steiner points, 48 triangles, angles in [31.26, 77.24]
+_DESIGNED[7] = (
+    np.array(
+        [
+            [0.13887105542628947, 0.2864721616067548],
+            [0.1423951935937256, 0.1833840928743655],
+            [0.23605831922925968, 0.38639835603040823],
+            [0.3240156530096541, 0.25115534736089035],
+            [0.30660369044722763, 0.6933963095527581],
+            [0.32701501354909956, 0.14714390645771597],
+            [0.48123052662596927, 0.19778355360096633],
+            [0.511730871733692, 0.4882691282662935],
+            [0.6136016439695912, 0.7639416807707317],
+            [0.6780614617940075, 0.32193853820599305],
+            [0.7135278383932424, 0.861128944573713],
+            [0.6950181065145741, 0.1702585474261901],
+            [0.7488446526391023, 0.6759843469903374],
+            [0.8022164463990331, 0.5187694733740363],
+            [0.8297414656867815, 0.30498179163658046],
+            [0.8166159071256377, 0.857604806406285],
+            [0.8466981547763816, 0.1533018452236193],
+            [0.8528560935422841, 0.6729849864508997],
+        ]
+    ),
+    np.array(
+        [
+            [0, 8, 15], [0, 15, 9], [1, 10, 30], [1, 30, 11], [2, 12, 29], [2, 29, 13],
+            [3, 7, 18], [3, 18, 6], [4, 11, 25], [4, 19, 8], [4, 20, 19], [4, 25, 20],
+            [5, 13, 31], [5, 27, 28], [5, 28, 10], [5, 31, 27], [6, 18, 22], [6, 22, 24],
+            [6, 24, 12], [7, 9, 14], [7, 14, 16], [7, 16, 18], [8, 19, 15], [9, 15, 14],
+            [10, 28, 30], [11, 30, 25], [12, 24, 29], [13, 29, 31], [14, 15, 17], [14, 17, 16],
+            [15, 19, 17], [16, 17, 21], [16, 21, 18], [17, 19, 20], [17, 20, 21], [18, 21, 22],
+            [20, 23, 21], [20, 25, 23], [21, 23, 27], [21, 26, 22], [21, 27, 26], [22, 26, 24],
+            [23, 25, 28], [23, 28, 27], [24, 26, 29], [25, 30, 28], [26, 27, 31], [26, 31, 29],
+        ]
+    ),
+)  # fmt: skip
+# </designed-stencils>
+
+
+def _boundary_points(mask: int) -> npt.NDArray[np.int64]:
+    """Boundary points of the stencil with fine-corner ``mask``, in quarter units.
+
+    Corners, side midpoints, then for each fine corner ``c`` (ascending) the points at distance
+    1/4 towards corner ``c + 1`` and towards corner ``c - 1``.
+    """
+    pts = [_CORNERS, _MIDS]
+    for c in range(4):
+        if mask >> c & 1:
+            v, nxt, prv = _CORNERS[c], _CORNERS[(c + 1) % 4], _CORNERS[(c - 1) % 4]
+            pts.append(np.array([v + (nxt - v) // 4, v + (prv - v) // 4]))
+    return np.vstack(pts).astype(np.int64)
+
+
+def _mask15() -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+    """Steiner points and triangles of the all-fine stencil: mask 0 in each quadrant."""
+    bnd = _boundary_points(15) / 4.0
+    pts = [bnd]
+    cells = []
+    for q in _CORNERS / 8.0:  # quadrant origins (0,0), (1/2,0), (1/2,1/2), (0,1/2)
+        pts.append(q + 0.5 * _MASK0_POINTS)
+        cells.append(_MASK0_CELLS + len(bnd) + 12 * len(cells))
+    x = np.vstack(pts)
+    key = np.round(x * 2**20).astype(np.int64)
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    # Renumber: boundary points first (their order in ``bnd``), then the others in order.
+    order = np.argsort(first)  # unique points in order of first appearance
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    cells = rank[inverse.ravel()][np.vstack(cells)]
+    steiner = x[np.sort(first)][len(bnd) :]
+    return steiner, cells.astype(np.int64)
+
+
+def _rotate_mask(mask: int, r: int) -> int:
+    """Corner mask after ``r`` quarter turns counter-clockwise (corner c -> corner c + r)."""
+    r %= 4
+    return ((mask << r) | (mask >> (4 - r))) & 15
+
+
+def _check_stencil(
+    mask: int, steiner: npt.NDArray[np.float64], cells: npt.NDArray[np.int64]
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+    """Orient a stencil counter-clockwise and verify that it tiles the unit square acutely."""
+    x = np.vstack([_boundary_points(mask) / 4.0, steiner])
+    cells = np.asarray(cells, dtype=np.int64)
+    area = _signed_areas(x, cells)
+    cells = np.where((area < 0)[:, None], cells[:, [0, 2, 1]], cells)
+    area = np.abs(area)
+    angles = _angles(x, cells)
+    if (
+        area.min() <= 0
+        or abs(area.sum() - 1.0) > 1e-12
+        or angles.max() >= 90.0
+        or not np.all((steiner > 0) & (steiner < 1))
+    ):
+        raise RuntimeError(f"invalid acute stencil for corner mask {mask}")  # pragma: no cover
+    return x, cells
+
+
+def _signed_areas(x: npt.NDArray[np.float64], cells: npt.NDArray[np.int64]) -> np.ndarray:
+    p0, p1, p2 = x[cells[:, 0]], x[cells[:, 1]], x[cells[:, 2]]
+    u, v = p1 - p0, p2 - p0
+    return 0.5 * (u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
+
+
+def _angles(x: npt.NDArray[np.float64], cells: npt.NDArray[np.int64]) -> np.ndarray:
+    """Interior angles in degrees, ``(num_cells, 3)``; column k is the angle at vertex k."""
+    p = x[cells]
+    out = np.empty(cells.shape)
+    for k in range(3):
+        u = p[:, (k + 1) % 3] - p[:, k]
+        v = p[:, (k + 2) % 3] - p[:, k]
+        cross = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
+        out[:, k] = np.degrees(np.arctan2(np.abs(cross), np.einsum("ij,ij->i", u, v)))
+    return out
+
+
+def _build_stencils() -> list[tuple[npt.NDArray[np.float64], npt.NDArray[np.int64], int]]:
+    """The 16 stencils, indexed by corner mask: ``(points, triangles, num_boundary_points)``.
+
+    Points are in unit-square coordinates, boundary points first (in the order of
+    :func:`_boundary_points`); triangles are counter-clockwise.
+    """
+    base = {0: (_MASK0_POINTS[8:], _MASK0_CELLS), 15: _mask15(), **_DESIGNED}
+    stencils: list = [None] * 16
+    for b, (steiner, cells) in base.items():
+        x, cells = _check_stencil(b, steiner, cells)
+        nb = len(_boundary_points(b))
+        for r in range(4):
+            m = _rotate_mask(b, r)
+            if stencils[m] is not None:
+                continue
+            y = x.copy()
+            for _ in range(r):  # quarter turn about the centre: (x, y) -> (1 - y, x)
+                y = np.column_stack([1.0 - y[:, 1], y[:, 0]])
+            # Reorder the boundary points into the canonical order for mask m.
+            q = np.rint(4.0 * y[:nb]).astype(np.int64)
+            canon = _boundary_points(m)
+            lookup = {tuple(p): i for i, p in enumerate(canon)}
+            perm = np.array([lookup[tuple(p)] for p in q])
+            new_index = np.concatenate([perm, np.arange(nb, len(y))])
+            pts = np.empty_like(y)
+            pts[new_index] = y
+            pts[:nb] = canon / 4.0  # exact
+            stencils[m] = (pts, new_index[cells], nb)
+    return stencils
+
+
+# ---------------------------------------------------------------------------------------------
+# Quadtree
+# ---------------------------------------------------------------------------------------------
+
+_MAX_CELLS = 10_000_000  # cells of one level (about 1.5e8 triangles)
+
+
+def _parse_box(box: npt.ArrayLike) -> tuple[float, float, float, float, float, int, int]:
+    """``x0, y0, x1, y1, side, nx, ny`` of a box made of ``nx * ny`` equal squares."""
+    b = np.asarray(box, dtype=np.float64).reshape(2, 2)
+    (x0, y0), (x1, y1) = b
+    if not np.all(np.isfinite(b)) or x1 <= x0 or y1 <= y0:
+        raise ValueError(f"need a finite box [[x0, y0], [x1, y1]] with x0 < x1, y0 < y1: {b}")
+    w, h = x1 - x0, y1 - y0
+    side = min(w, h)
+    nx, ny = round(w / side), round(h / side)
+    if abs(nx * side - w) > 1e-9 * w or abs(ny * side - h) > 1e-9 * h:
+        raise ValueError(
+            f"box {b.tolist()} is not a whole number of equal squares ({w / side:g} x {h / side:g})"
+        )
+    return float(x0), float(y0), float(x1), float(y1), float(side), int(nx), int(ny)
+
+
+def _target_size(
+    size: SizeLike, side: float, min_size: float | None, max_size: float | None
+) -> Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]]:
+    """The clipped target size ``h(x) = clip(size(x), min_size, max_size)``."""
+    lo = side * 2.0**-20 if min_size is None else float(min_size)
+    hi = np.inf if max_size is None else float(max_size)
+    if not lo > 0 or hi < lo:
+        raise ValueError(f"need 0 < min_size <= max_size, got {min_size}, {max_size}")
+
+    if callable(size):
+
+        def h(x: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+            v = np.asarray(size(x), dtype=np.float64)
+            v = np.broadcast_to(v.reshape(-1) if v.size == len(x) else v, (len(x),))
+            if not np.all(v > 0):  # also catches NaN
+                raise ValueError("size function must return positive values")
+            return np.clip(v, lo, hi)
+
+    else:
+        value = float(size)
+        if not value > 0 or not np.isfinite(value):
+            raise ValueError(f"size must be positive and finite, got {size}")
+        value = min(max(value, lo), hi)
+
+        def h(x: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+            return np.full(len(x), value)
+
+    return h
+
+
+def _split(keys: np.ndarray, ny_l: int) -> tuple[np.ndarray, np.ndarray]:
+    return keys // ny_l, keys % ny_l
+
+
+def _children(keys: np.ndarray, ny_l: int) -> np.ndarray:
+    """Sorted keys at level l + 1 of the four children of each cell (keys at level l)."""
+    i, j = _split(keys, ny_l)
+    ny_c = 2 * ny_l
+    ci = (2 * i)[:, None] + np.array([0, 0, 1, 1])
+    cj = (2 * j)[:, None] + np.array([0, 1, 0, 1])
+    return np.sort((ci * ny_c + cj).ravel())
+
+
+def _refine(h: Callable, x0: float, y0: float, side: float, nx: int, ny: int) -> list[np.ndarray]:
+    """Top-down refinement by size: sorted keys of the split cells, per level."""
+    i, j = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
+    keys = (i * ny + j).ravel().astype(np.int64)
+    refined: list[np.ndarray] = []
+    level = 0
+    offsets = np.array([[a, b] for a in (0.0, 0.5, 1.0) for b in (0.0, 0.5, 1.0)])
+    while len(keys):
+        if len(keys) > _MAX_CELLS:
+            raise ValueError("the size function asks for more than 1e7 quadtree cells on one level")
+        ny_l = ny << level
+        s = side / 2.0**level
+        ci, cj = _split(keys, ny_l)
+        corner = np.column_stack([x0 + ci * s, y0 + cj * s])
+        pts = (corner[:, None, :] + s * offsets[None]).reshape(-1, 2)
+        hmin = h(pts).reshape(len(keys), len(offsets)).min(axis=1)
+        split = keys[EDGE_FACTOR * s > hmin]
+        refined.append(split)
+        keys = _children(split, ny_l)
+        level += 1
+    while refined and not len(refined[-1]):
+        refined.pop()
+    return refined
+
+
+_NEIGHBOURS = np.array([[a, b] for a in (-1, 0, 1) for b in (-1, 0, 1) if a or b])
+
+
+def _balance(refined: list[np.ndarray], nx: int, ny: int) -> list[np.ndarray]:
+    """Corner-balance the quadtree: leaves sharing a vertex differ by at most one level.
+
+    One sweep from the finest level to the coarsest: a leaf at level l requires each of its
+    eight neighbouring cells at level l to lie in a node of level >= l - 1, i.e. the
+    grandparent (level l - 2) of the neighbour must be split. Requirements only create leaves
+    at coarser levels, which are processed later in the sweep; ancestors of split cells are
+    split as well (closure), level by level.
+    """
+    refined = [r.copy() for r in refined] + [np.empty(0, dtype=np.int64)]
+    for level in range(len(refined) - 1, 0, -1):
+        ny_l, ny_p = ny << level, ny << (level - 1)
+        pi, pj = _split(refined[level], ny_l)
+        refined[level - 1] = np.union1d(refined[level - 1], (pi // 2) * ny_p + pj // 2)
+        if level < 2:
+            continue
+        nodes = _children(refined[level - 1], ny_p)
+        leaves = np.setdiff1d(nodes, refined[level], assume_unique=True)
+        i, j = _split(leaves, ny_l)
+        ni = (i[:, None] + _NEIGHBOURS[:, 0]).ravel()
+        nj = (j[:, None] + _NEIGHBOURS[:, 1]).ravel()
+        inside = (ni >= 0) & (nj >= 0) & (ni < nx << level) & (nj < ny_l)
+        ny_g = ny << (level - 2)
+        grand = np.unique((ni[inside] // 4) * ny_g + nj[inside] // 4)
+        refined[level - 2] = np.union1d(refined[level - 2], grand)
+    while len(refined) > 0 and not len(refined[-1]):
+        refined.pop()
+    return refined
+
+
+def _leaves(refined: list[np.ndarray], nx: int, ny: int) -> list[np.ndarray]:
+    """Sorted keys of the leaves, per level (levels 0 .. len(refined))."""
+    out = []
+    nodes = np.arange(nx * ny, dtype=np.int64)
+    for level in range(len(refined) + 1):
+        split = refined[level] if level < len(refined) else np.empty(0, dtype=np.int64)
+        out.append(np.setdiff1d(nodes, split, assume_unique=True))
+        nodes = _children(split, ny << level)
+    return out
+
+
+def _leaf_corner_masks(
+    leaves: np.ndarray, refined: np.ndarray, level: int, nx: int, ny: int
+) -> np.ndarray:
+    """Fine-corner masks of the leaves at one level.
+
+    A corner of a leaf at level l is fine when one of the four level-l cells around it is
+    split, i.e. when a smaller leaf (level l + 1, by corner balance) touches it. Consistency
+    of the boundary points: a side of length s between two leaves of level l carries a point
+    at s/4 from an end exactly when that end is fine for both (same criterion); a side half
+    of length s between a level-l leaf and a level-(l-1) leaf carries the coarse leaf's
+    quarter point at its middle, and no point at s/4 from its ends, because such a point
+    would need a level-(l+1) leaf at a vertex of the level-(l-1) leaf.
+    """
+    ny_l = ny << level
+    nyv = ny_l + 1  # vertex keys at this level: vx * (ny_l + 1) + vy
+    ri, rj = _split(refined, ny_l)
+    fine = np.unique(np.concatenate([(ri + a) * nyv + rj + b for a in (0, 1) for b in (0, 1)]))
+    i, j = _split(leaves, ny_l)
+    mask = np.zeros(len(leaves), dtype=np.int64)
+    if not len(fine):
+        return mask
+    for c, (a, b) in enumerate(((0, 0), (1, 0), (1, 1), (0, 1))):
+        v = (i + a) * nyv + j + b
+        pos = np.searchsorted(fine, v)
+        hit = (pos < len(fine)) & (fine[np.minimum(pos, len(fine) - 1)] == v)
+        mask |= hit.astype(np.int64) << c
+    return mask
+
+
+# ---------------------------------------------------------------------------------------------
+# Assembly
+# ---------------------------------------------------------------------------------------------
+
+
+def acute_quadtree_triangulation(
+    box: Sequence[Sequence[float]] | npt.ArrayLike,
+    size: SizeLike,
+    min_size: float | None = None,
+    max_size: float | None = None,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+    """Graded triangulation of a box by acute triangles, from a balanced quadtree.
+
+    The box is covered by equal root squares. A square of side ``s`` is split into four
+    while ``EDGE_FACTOR * s > h`` (:data:`EDGE_FACTOR` ~ 0.53 is the longest stencil edge
+    relative to the leaf side), ``h`` being the clipped target size
+    ``clip(size, min_size, max_size)`` minimised over the square's centre, corners and side
+    midpoints; so no edge is longer than ``h`` there. A leaf is at least half as large as
+    this rule allows (sampling ``h`` on its parent), unless it was split to balance the tree. The
+    quadtree is then corner-balanced (leaves sharing a vertex, hence also leaves sharing an
+    edge, differ by at most one level; a sweep over levels, vectorised per level) and every
+    leaf is tiled with one of 16 acute stencils (see the module notes), chosen by which of its
+    corners touch a smaller leaf.
+
+    All angles lie in :data:`STENCIL_ANGLE_RANGE` (degrees), whatever the size function.
+    Only those nine samples per square are seen, so features of the size function narrower
+    than the squares they fall in can be missed. Where the size grows faster than the balance
+    allows (leaf sides at most double from one leaf to the next), the mesh is finer than asked.
+
+    Parameters
+    ----------
+    box
+        ``[[x0, y0], [x1, y1]]``: a square, or a rectangle made of a whole number of equal
+        squares (e.g. 2 x 1). Its boundary is exactly the boundary of the triangulation.
+    size
+        Target edge length: a positive float, or a vectorised callable mapping points
+        ``(n, 2)`` to sizes ``(n,)``.
+    min_size
+        Lower clip of the size (default ``side * 2**-20``, ``side`` = root square side).
+    max_size
+        Upper clip of the size (default: none; the root squares are the coarsest leaves).
+
+    Returns
+    -------
+    x
+        Vertex coordinates ``(num_vertices, 2)``; no duplicates.
+    cells
+        Counter-clockwise triangles ``(num_cells, 3)``.
+    """
+    x0, y0, x1, y1, side, nx, ny = _parse_box(box)
+    h = _target_size(size, side, min_size, max_size)
+    refined = _balance(_refine(h, x0, y0, side, nx, ny), nx, ny)
+    leaves = _leaves(refined, nx, ny)
+    fine_level = len(leaves) - 1
+    shift = fine_level + 2  # lattice: quarter of the finest leaf side
+    nyq = (ny << shift) + 1
+    unit = side / 2.0**shift
+
+    groups = []  # (boundary keys (n, nb), steiner points (n, ns, 2), triangles (t, 3))
+    for level, keys in enumerate(leaves):
+        if not len(keys):
+            continue
+        split = refined[level] if level < len(refined) else np.empty(0, dtype=np.int64)
+        masks = _leaf_corner_masks(keys, split, level, nx, ny)
+        i, j = _split(keys, ny << level)
+        step = 1 << (fine_level - level)  # a quarter of this leaf's side, in lattice units
+        for m in np.unique(masks):
+            pts, tris, nb = _STENCILS[m]
+            sel = masks == m
+            ox, oy = (i[sel] << (shift - level)), (j[sel] << (shift - level))
+            q = np.rint(4.0 * pts[:nb]).astype(np.int64) * step
+            bkeys = (ox[:, None] + q[:, 0]) * nyq + oy[:, None] + q[:, 1]
+            origin = np.column_stack([x0 + ox * unit, y0 + oy * unit])
+            steiner = origin[:, None, :] + (4 * step * unit) * pts[None, nb:]
+            groups.append((bkeys, steiner, tris))
+
+    all_keys = np.concatenate([g[0].ravel() for g in groups])
+    lattice, inverse = np.unique(all_keys, return_inverse=True)
+    nlat = len(lattice)
+    X, Y = lattice // nyq, lattice % nyq
+    xl = np.column_stack([x0 + X * unit, y0 + Y * unit])
+    xl[X == 0, 0], xl[X == nx << shift, 0] = x0, x1  # the box, exactly
+    xl[Y == 0, 1], xl[Y == ny << shift, 1] = y0, y1
+
+    coords = [xl]
+    cells = []
+    koff, soff = 0, nlat
+    for bkeys, steiner, tris in groups:
+        n, nb = bkeys.shape
+        ns = steiner.shape[1]
+        table = np.empty((n, nb + ns), dtype=np.int64)
+        table[:, :nb] = inverse[koff : koff + n * nb].reshape(n, nb)
+        table[:, nb:] = soff + np.arange(n * ns).reshape(n, ns)
+        cells.append(table[:, tris].reshape(-1, 3))
+        coords.append(steiner.reshape(-1, 2))
+        koff += n * nb
+        soff += n * ns
+    return np.vstack(coords), np.concatenate(cells).astype(np.int64)
+
+
+def graded_mesh(
+    comm: MPI.Comm,
+    box: Sequence[Sequence[float]] | npt.ArrayLike,
+    size: SizeLike,
+    min_size: float | None = None,
+    max_size: float | None = None,
+) -> dmesh.Mesh:
+    """Distributed graded acute mesh of a box (see :func:`acute_quadtree_triangulation`).
+
+    The triangulation is built on rank 0 (``size`` is only called there) and distributed with
+    shared-facet ghosts by :func:`dolfinx_universal.background.create_background_mesh`.
+
+    Parameters
+    ----------
+    comm
+        Communicator of the mesh.
+    box, size, min_size, max_size
+        As in :func:`acute_quadtree_triangulation`.
+
+    Returns
+    -------
+    A DOLFINx mesh with degree-1 geometry.
+    """
+    if comm.rank == 0:
+        x, cells = acute_quadtree_triangulation(box, size, min_size, max_size)
+    else:
+        x, cells = None, None
+    return create_background_mesh(comm, x, cells)
+
+
+def local_size(x: npt.ArrayLike, cells: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """Per-vertex mesh size: the largest diameter (longest edge) of the incident triangles.
+
+    Parameters
+    ----------
+    x
+        Vertex coordinates ``(num_vertices, gdim)``.
+    cells
+        Triangles ``(num_cells, 3)``.
+
+    Returns
+    -------
+    Sizes ``(num_vertices,)``; zero at vertices in no cell.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    cells = np.asarray(cells, dtype=np.int64).reshape(-1, 3)
+    diam = _edge_lengths(x, cells).max(axis=1, initial=0.0)
+    out = np.zeros(len(x))
+    for k in range(3):
+        np.maximum.at(out, cells[:, k], diam)
+    return out
+
+
+def _edge_lengths(x: npt.NDArray[np.float64], cells: npt.NDArray[np.int64]) -> np.ndarray:
+    """Edge lengths ``(num_cells, 3)``; column k is the edge opposite vertex k."""
+    p = x[cells]
+    return np.linalg.norm(p[:, [2, 0, 1]] - p[:, [1, 2, 0]], axis=2)
+
+
+_STENCILS = _build_stencils()
+_ALL_ANGLES = np.concatenate([_angles(p, t).ravel() for p, t, _ in _STENCILS])
+_ALL_EDGES = np.concatenate([_edge_lengths(p, t).ravel() for p, t, _ in _STENCILS])
+#: Smallest and largest angle (degrees) of any triangle of any stencil, hence of any mesh
+#: built here.
+STENCIL_ANGLE_RANGE: tuple[float, float] = (float(_ALL_ANGLES.min()), float(_ALL_ANGLES.max()))
+#: Longest stencil edge relative to the leaf side: leaves of side ``s`` are split while
+#: ``EDGE_FACTOR * s`` exceeds the target size, so that no edge is longer than the target.
+EDGE_FACTOR: float = float(_ALL_EDGES.max())
+#: Shortest stencil edge relative to the leaf side.
+_EDGE_MIN: float = float(_ALL_EDGES.min())
