@@ -22,6 +22,7 @@ from .classify import conditioning_angle, positive_edges, positively_cut
 from .conform import IMMERSED, OUTER, ConformingMesh, UniversalMesh, conform
 from .constraints import SlipConstraint
 from .curved import CurvedMesh, boundary_dof_data, curved_mesh
+from .graded import graded_mesh
 from .moving import MovingDomain
 from .quality import quality_report
 from .validation import MeshingError
@@ -53,6 +54,7 @@ __all__ = [
     "conform",
     "curved_mesh",
     "equilateral_mesh",
+    "graded_mesh",
     "positive_edges",
     "positively_cut",
     "quality_report",
