@@ -30,17 +30,10 @@ import numpy as np
 import ufl
 from dolfinx import fem
 from dolfinx import mesh as dmesh
-from dolfinx.fem.petsc import (
-    apply_lifting,
-    assemble_matrix,
-    assemble_vector,
-    create_matrix,
-    create_vector,
-    set_bc,
-)
+from dolfinx.fem.petsc import create_matrix, create_vector
 
 import dolfinx_universal as du
-from dolfinx_universal.moving import MovingDomain
+from dolfinx_universal.moving import MovingDomain, reassemble
 
 comm = MPI.COMM_WORLD
 
@@ -113,15 +106,7 @@ def stokes_assemble(md: MovingDomain, W, a, L, A, b, omega: float) -> None:
         fem.dirichletbc(zero, walls, W.sub(0)),
         fem.dirichletbc(fem.Function(Q), p_fixed, W.sub(1)),
     ]
-    A.zeroEntries()
-    assemble_matrix(A, a, bcs=bcs)
-    A.assemble()
-    with b.localForm() as loc:
-        loc.set(0.0)
-    assemble_vector(b, L)
-    apply_lifting(b, [a], [bcs])
-    b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-    set_bc(b, bcs)
+    reassemble(A, b, a, L, bcs)
 
 
 def main() -> None:

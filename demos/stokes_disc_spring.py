@@ -114,18 +114,11 @@ import numpy as np
 import ufl
 from dolfinx import fem, geometry
 from dolfinx import mesh as dmesh
-from dolfinx.fem.petsc import (
-    apply_lifting,
-    assemble_matrix,
-    assemble_vector,
-    create_matrix,
-    create_vector,
-    set_bc,
-)
+from dolfinx.fem.petsc import create_matrix, create_vector
 
 import dolfinx_universal as du
 from dolfinx_universal.graded import graded_mesh
-from dolfinx_universal.moving import MovingDomain, count_jit_compilations
+from dolfinx_universal.moving import MovingDomain, count_jit_compilations, reassemble
 from dolfinx_universal.plotting import boundary_polyline, gather_cells, plot_mesh, save
 
 parser = argparse.ArgumentParser(description="A rigid disc on a spring in Stokes flow")
@@ -299,16 +292,8 @@ class DiscInChannel:
             self.bc_corner,
         ]
         A, b = self.A, self.b
-        A.zeroEntries()
-        assemble_matrix(A, self.a, bcs=bcs)
-        A.assemble()
+        reassemble(A, b, self.a, self.L, bcs)
         A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
-        with b.localForm() as b_local:
-            b_local.set(0.0)
-        assemble_vector(b, self.L)
-        apply_lifting(b, [self.a], [bcs])
-        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        set_bc(b, bcs)
         t2 = time.perf_counter()
         self.ksp.solve(b, self.wh.x.petsc_vec)
         assert self.ksp.getConvergedReason() > 0

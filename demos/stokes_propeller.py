@@ -84,18 +84,11 @@ import numpy as np
 import ufl
 from dolfinx import fem, geometry, io
 from dolfinx import mesh as dmesh
-from dolfinx.fem.petsc import (
-    apply_lifting,
-    assemble_matrix,
-    assemble_vector,
-    create_matrix,
-    create_vector,
-    set_bc,
-)
+from dolfinx.fem.petsc import create_matrix, create_vector
 
 import dolfinx_universal as du
 from dolfinx_universal.graded import graded_mesh
-from dolfinx_universal.moving import MovingDomain, count_jit_compilations
+from dolfinx_universal.moving import MovingDomain, count_jit_compilations, reassemble
 from dolfinx_universal.plotting import boundary_polyline, gather_cells, plot_mesh, save
 
 parser = argparse.ArgumentParser(description="Stokes flow around a rotating propeller")
@@ -365,15 +358,7 @@ for k, angle in enumerate(angles_deg):
     v_rot.x.array[body_dofs[1]] = rotation.x.array[body_dofs[1]]
     bcs = [bc_out, bc_wall, fem.dirichletbc(u_body, body_dofs, W.sub(0)), bc_corner]
     t1 = time.perf_counter()
-    A.zeroEntries()
-    assemble_matrix(A, a_form, bcs=bcs)
-    A.assemble()
-    with b.localForm() as b_local:
-        b_local.set(0.0)
-    assemble_vector(b, L_form)
-    apply_lifting(b, [a_form], [bcs])
-    b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-    set_bc(b, bcs)
+    reassemble(A, b, a_form, L_form, bcs)
     t2 = time.perf_counter()
     ksp.setOperators(A)
     ksp.solve(b, wh.x.petsc_vec)

@@ -149,16 +149,6 @@ def _vertex_sizes(imv, x, c2v, num_owned: int, local: bool, comm: MPI.Comm):
             return hv
 
 
-def _csr_gather(offsets: npt.NDArray, array: npt.NDArray, rows: npt.NDArray) -> npt.NDArray:
-    """Unique entries of the given rows of a CSR adjacency list."""
-    if len(rows) == 0:
-        return np.empty(0, dtype=array.dtype)
-    start, stop = offsets[rows], offsets[rows + 1]
-    count = stop - start
-    idx = np.repeat(start - np.cumsum(count) + count, count) + np.arange(count.sum())
-    return np.unique(array[idx])
-
-
 def _incidence(imv, vertices: npt.NDArray, n: int) -> npt.NDArray[np.float64]:
     """Global number of times each local vertex appears in ``vertices`` (over all ranks)."""
     count = np.bincount(np.asarray(vertices).ravel(), minlength=n).astype(np.float64)
@@ -277,8 +267,6 @@ class UniversalMesh:
         self.alpha = float(alpha)
         for a, b in ((2, 1), (1, 2), (1, 0), (0, 2)):
             topo.create_connectivity(a, b)
-        v2c = topo.connectivity(0, 2)
-        self._v2c_offsets, self._v2c = v2c.offsets, v2c.array
         self._c2f = topo.connectivity(2, 1).array.reshape(-1, 3)
         f2c = topo.connectivity(1, 2)
         self._f2c_offsets, self._f2c = f2c.offsets, f2c.array
@@ -349,7 +337,9 @@ class UniversalMesh:
 
         # Quality perturbation: relocate inside vertices too close to Gamma, to a fixed point.
         t2 = time.perf_counter()
-        near_all = _csr_gather(self._v2c_offsets, self._v2c, band_idx)  # cells at the band
+        near_all = dmesh.compute_incident_entities(  # the cells at the band
+            self.background.topology, band_idx.astype(np.int32), 0, 2
+        )
         near_cells = near_all[near_all < nco]
         owned = c2v[:nco]
         near = owned[near_cells]
@@ -393,7 +383,7 @@ class UniversalMesh:
         )
         moved = np.zeros(nv, dtype=bool)
         moved[band_idx] = np.any(y[band_idx] != x[band_idx], axis=1)
-        problems = self._check_output(y, near_kept, in_kept)
+        problems = self._check_output(y, moved, near_kept, in_kept)
         raise_collective(comm, problems)
         near_cells = near_cells.astype(np.int32)
         raise_collective(comm, _check_containment(self.background, boundary, near_cells, comm))
@@ -511,14 +501,13 @@ class UniversalMesh:
             )
         return problems
 
-    def _check_output(self, y, kc, in_kept) -> list[str]:
+    def _check_output(self, y, moved, kc, in_kept) -> list[str]:
         """Local problems with the conforming triangles: inversion, degeneracy, moved outer
         boundary."""
         problems = []
         x = self._x
         cells = self._c2v[kc]
-        moved = np.any(y[cells] != x[cells], axis=(1, 2))
-        cells = cells[moved]  # unmoved triangles keep their background shape
+        cells = cells[moved[cells].any(axis=1)]  # unmoved triangles keep their shape
         a0, a1 = signed_areas(x, cells), signed_areas(y, cells)
         d2 = cell_diameters(x, cells) ** 2
         inverted = (np.sign(a1) != np.sign(a0)) | (np.abs(a1) <= 1e-10 * d2)
@@ -530,8 +519,7 @@ class UniversalMesh:
                 "refine near those points or use an acute (e.g. equilateral) background"
             )
         ev = self._outer_vertices
-        ev = ev[in_kept[ev]]
-        shifted = ev[np.any(y[ev] != x[ev], axis=1)]
+        shifted = ev[in_kept[ev] & moved[ev]]
         if len(shifted):
             problems.append(
                 f"the boundary of the background mesh would move at {where(x[shifted])}: "

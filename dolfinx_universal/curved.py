@@ -14,6 +14,7 @@ import numpy.typing as npt
 from dolfinx import fem
 from dolfinx import mesh as dmesh
 
+from .classify import positively_cut
 from .conform import IMMERSED, ConformingMesh
 from .validation import collective_call, raise_collective, where
 
@@ -145,7 +146,7 @@ def map_nodes(
     """
     lam = reference_nodes(degree)
     nodes = np.einsum("pi,cid->cpd", lam, y[cells])  # affine images
-    pc = np.flatnonzero((sign[cells] > 0).sum(axis=1) == 2)
+    pc = np.flatnonzero(positively_cut(sign, cells))
     if len(pc) == 0:
         return nodes
     k = np.argmin(sign[cells[pc]], axis=1)  # local index of the inside vertex w

@@ -18,13 +18,13 @@ from dolfinx import fem
 from dolfinx import mesh as dmesh
 
 from .boundaries import Boundary
-from .classify import interior_angles
+from .classify import interior_angles, positively_cut
 from .conform import UniversalMesh
 from .curved import MAPS, jacobian_ratio, map_nodes
 from .quality import cell_quality, edge_ratio, radius_ratio
 from .validation import collective_call, raise_collective, vertex_reduce, where
 
-__all__ = ["MovingDomain", "StepReport", "count_jit_compilations"]
+__all__ = ["MovingDomain", "StepReport", "count_jit_compilations", "reassemble"]
 
 
 @dataclass
@@ -147,7 +147,7 @@ class MovingDomain:
             self._kind, boundary.closest_point,
         )
         kept = sm.kept[redo]
-        cut = np.flatnonzero(kept & ((sm.sign[cells] > 0).sum(axis=1) == 2))
+        cut = np.flatnonzero(kept & positively_cut(sm.sign, cells))
         ratio = jacobian_ratio(nodes[cut], self.degree) if self.degree > 1 else np.ones(0)
         bad = ratio <= 0
         raise_collective(
@@ -256,27 +256,31 @@ class MovingDomain:
 
     def immersed_nodes(self) -> npt.NDArray[np.float64]:
         """Geometry nodes on Gamma_h (process-local), ``(n, 2)``: they lie on Gamma."""
-        topo = self.mesh.topology
-        topo.create_connectivity(1, 2)
-        f2c = topo.connectivity(1, 2)
-        cells = f2c.array[f2c.offsets[self.immersed_facets]]
-        cells = np.where(
-            self.active.x.array[self._cell_dof[cells]] > 0, cells,
-            f2c.array[np.minimum(f2c.offsets[self.immersed_facets] + 1,
-                                 f2c.offsets[self.immersed_facets + 1] - 1)],
-        )
-        # the local facet index of each facet in its active cell
-        local = np.argmax(self._c2f[cells] == self.immersed_facets[:, None], axis=1)
-        lam = _facet_node_mask(self.degree)
-        return self.mesh.geometry.x[self._dofmap[cells][lam[local]], :2]
+        self.mesh.topology.create_connectivity(1, 2)
+        nodes = dmesh.entities_to_geometry(self.mesh, 1, self.immersed_facets)
+        return self.mesh.geometry.x[nodes.ravel(), :2]
 
 
-def _facet_node_mask(degree: int) -> npt.NDArray[np.bool_]:
-    """For each local facet (opposite vertex i), which reference nodes lie on it, ``(3, nd)``."""
-    from .curved import reference_nodes
+def reassemble(A, b, a: fem.Form, L: fem.Form, bcs: list[fem.DirichletBC]) -> None:
+    """Assemble ``a`` and ``L`` with ``bcs`` into the existing PETSc matrix and vector.
 
-    lam = reference_nodes(degree)
-    return np.abs(lam.T) < 1e-12
+    On a :class:`MovingDomain` the sparsity of ``A`` (from
+    :func:`dolfinx.fem.petsc.create_matrix` before the first step) stays valid for every
+    step; only the values and the boundary conditions change.
+    """
+    from petsc4py import PETSc
+
+    from dolfinx.fem.petsc import apply_lifting, assemble_matrix, assemble_vector, set_bc
+
+    A.zeroEntries()
+    assemble_matrix(A, a, bcs=bcs)
+    A.assemble()
+    with b.localForm() as local:
+        local.set(0.0)
+    assemble_vector(b, L)
+    apply_lifting(b, [a], [bcs])
+    b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+    set_bc(b, bcs)
 
 
 @contextlib.contextmanager

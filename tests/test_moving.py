@@ -9,17 +9,10 @@ import numpy as np
 import pytest
 import ufl
 from dolfinx import fem
-from dolfinx.fem.petsc import (
-    apply_lifting,
-    assemble_matrix,
-    assemble_vector,
-    create_matrix,
-    create_vector,
-    set_bc,
-)
+from dolfinx.fem.petsc import create_matrix, create_vector
 
 import dolfinx_universal as du
-from dolfinx_universal.moving import MovingDomain, count_jit_compilations
+from dolfinx_universal.moving import MovingDomain, count_jit_compilations, reassemble
 
 comm = MPI.COMM_WORLD
 
@@ -85,15 +78,7 @@ def test_in_place_equals_submesh_and_no_recompilation():
             u_d.interpolate(lambda p: np.exp(p[1]) * np.sin(p[0]))
             u_d.x.array[fixed] = 0.0
             bcs = [fem.dirichletbc(u_d, np.union1d(md.immersed_dofs(V), fixed))]
-            A.zeroEntries()
-            assemble_matrix(A, a, bcs=bcs)
-            A.assemble()
-            with b.localForm() as loc:
-                loc.set(0.0)
-            assemble_vector(b, L)
-            apply_lifting(b, [a], [bcs])
-            b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-            set_bc(b, bcs)
+            reassemble(A, b, a, L, bcs)
             ksp.setOperators(A)
             ksp.solve(b, uh.x.petsc_vec)
             uh.x.scatter_forward()
