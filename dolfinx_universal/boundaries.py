@@ -1184,6 +1184,9 @@ class RigidMotion(Boundary):
     def _length(self) -> float:
         return self.base._length()
 
+    def _loops(self, spacing: float) -> list[Float]:
+        return [self._from_base(q) for q in self.base._loops(spacing)]
+
 
 class Domain(Boundary):
     """Omega = inside(``container``) minus the closures of the ``bodies``.
@@ -1296,3 +1299,7 @@ class Domain(Boundary):
 
     def _length(self) -> float:
         return sum(b._length() for b, _ in self.components)
+
+    def _loops(self, spacing: float) -> list[Float]:
+        """The loops of every component (container first), each as that component gives it."""
+        return [q for b, _ in self.components for q in b._loops(spacing)]

@@ -14,7 +14,9 @@ from .background import create_background_mesh
 
 __all__ = [
     "EDGE_FACTOR",
+    "MAX_STRETCH",
     "STENCIL_ANGLE_RANGE",
+    "STRETCHED_ANGLE_RANGE",
     "acute_quadtree_triangulation",
     "graded_mesh",
     "local_size",
@@ -306,20 +308,46 @@ def _build_stencils() -> list[tuple[npt.NDArray[np.float64], npt.NDArray[np.int6
 _MAX_CELLS = 10_000_000  # cells of one level (about 1.5e8 triangles)
 
 
-def _parse_box(box: npt.ArrayLike) -> tuple[float, float, float, float, float, int, int]:
-    """``x0, y0, x1, y1, side, nx, ny`` of a box made of ``nx * ny`` equal squares."""
+MAX_STRETCH = 1.1
+"""Largest aspect ratio of the root cells of a box that is not a whole number of squares."""
+
+
+def _parse_box(
+    box: npt.ArrayLike, root_size: float | None = None
+) -> tuple[float, float, float, float, float, float, int, int]:
+    """``x0, y0, x1, y1, sx, sy, nx, ny`` of a box made of ``nx * ny`` equal root cells.
+
+    Without ``root_size`` the cells are squares whose side is the box's shorter side (the box
+    must be a whole number of them). With it, the cells are at most ``root_size`` wide and
+    high and nearly square: ``max(sx, sy) / min(sx, sy) <= MAX_STRETCH`` (the stencils
+    stretched by that much stay acute, see :data:`STRETCHED_ANGLE_RANGE`).
+    """
     b = np.asarray(box, dtype=np.float64).reshape(2, 2)
     (x0, y0), (x1, y1) = b
     if not np.all(np.isfinite(b)) or x1 <= x0 or y1 <= y0:
         raise ValueError(f"need a finite box [[x0, y0], [x1, y1]] with x0 < x1, y0 < y1: {b}")
     w, h = x1 - x0, y1 - y0
-    side = min(w, h)
-    nx, ny = round(w / side), round(h / side)
-    if abs(nx * side - w) > 1e-9 * w or abs(ny * side - h) > 1e-9 * h:
-        raise ValueError(
-            f"box {b.tolist()} is not a whole number of equal squares ({w / side:g} x {h / side:g})"
-        )
-    return float(x0), float(y0), float(x1), float(y1), float(side), int(nx), int(ny)
+    if root_size is None:
+        side = min(w, h)
+        nx, ny = round(w / side), round(h / side)
+        if abs(nx * side - w) > 1e-9 * w or abs(ny * side - h) > 1e-9 * h:
+            raise ValueError(
+                f"box {b.tolist()} is not a whole number of equal squares "
+                f"({w / side:g} x {h / side:g})"
+            )
+        sx = sy = side
+    else:
+        r = float(root_size)
+        if not (r > 0 and np.isfinite(r)):
+            raise ValueError(f"root_size must be positive and finite, got {root_size}")
+        nx, ny = max(1, int(np.ceil(w / r))), max(1, int(np.ceil(h / r)))
+        while max(w / nx, h / ny) / min(w / nx, h / ny) > MAX_STRETCH:
+            if w / nx > h / ny:
+                nx += 1
+            else:
+                ny += 1
+        sx, sy = w / nx, h / ny
+    return float(x0), float(y0), float(x1), float(y1), float(sx), float(sy), int(nx), int(ny)
 
 
 def _target_size(
@@ -365,7 +393,9 @@ def _children(keys: np.ndarray, ny_l: int) -> np.ndarray:
     return np.sort((ci * ny_c + cj).ravel())
 
 
-def _refine(h: Callable, x0: float, y0: float, side: float, nx: int, ny: int) -> list[np.ndarray]:
+def _refine(
+    h: Callable, x0: float, y0: float, sx: float, sy: float, nx: int, ny: int
+) -> list[np.ndarray]:
     """Top-down refinement by size: sorted keys of the split cells, per level."""
     i, j = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
     keys = (i * ny + j).ravel().astype(np.int64)
@@ -376,12 +406,12 @@ def _refine(h: Callable, x0: float, y0: float, side: float, nx: int, ny: int) ->
         if len(keys) > _MAX_CELLS:
             raise ValueError("the size function asks for more than 1e7 quadtree cells on one level")
         ny_l = ny << level
-        s = side / 2.0**level
+        s = np.array([sx, sy]) / 2.0**level
         ci, cj = _split(keys, ny_l)
-        corner = np.column_stack([x0 + ci * s, y0 + cj * s])
+        corner = np.column_stack([x0 + ci * s[0], y0 + cj * s[1]])
         pts = (corner[:, None, :] + s * offsets[None]).reshape(-1, 2)
         hmin = h(pts).reshape(len(keys), len(offsets)).min(axis=1)
-        split = keys[EDGE_FACTOR * s > hmin]
+        split = keys[EDGE_FACTOR * s.max() > hmin]
         refined.append(split)
         keys = _children(split, ny_l)
         level += 1
@@ -473,6 +503,7 @@ def acute_quadtree_triangulation(
     size: SizeLike,
     min_size: float | None = None,
     max_size: float | None = None,
+    root_size: float | None = None,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
     """Graded triangulation of a box by acute triangles, from a balanced quadtree.
 
@@ -504,6 +535,11 @@ def acute_quadtree_triangulation(
         Lower clip of the size (default ``side * 2**-20``, ``side`` = root square side).
     max_size
         Upper clip of the size (default: none; the root squares are the coarsest leaves).
+    root_size
+        Largest side of the root cells. Given, the box may have any shape: it is divided
+        into nearly square root cells (aspect ratio at most :data:`MAX_STRETCH`; the
+        stencils are stretched with them and keep their angles in
+        :data:`STRETCHED_ANGLE_RANGE`).
 
     Returns
     -------
@@ -512,14 +548,14 @@ def acute_quadtree_triangulation(
     cells
         Counter-clockwise triangles ``(num_cells, 3)``.
     """
-    x0, y0, x1, y1, side, nx, ny = _parse_box(box)
-    h = _target_size(size, side, min_size, max_size)
-    refined = _balance(_refine(h, x0, y0, side, nx, ny), nx, ny)
+    x0, y0, x1, y1, sx, sy, nx, ny = _parse_box(box, root_size)
+    h = _target_size(size, min(sx, sy), min_size, max_size)
+    refined = _balance(_refine(h, x0, y0, sx, sy, nx, ny), nx, ny)
     leaves = _leaves(refined, nx, ny)
     fine_level = len(leaves) - 1
     shift = fine_level + 2  # lattice: quarter of the finest leaf side
     nyq = (ny << shift) + 1
-    unit = side / 2.0**shift
+    unit = np.array([sx, sy]) / 2.0**shift
 
     groups = []  # (boundary keys (n, nb), steiner points (n, ns, 2), triangles (t, 3))
     for level, keys in enumerate(leaves):
@@ -535,7 +571,7 @@ def acute_quadtree_triangulation(
             ox, oy = (i[sel] << (shift - level)), (j[sel] << (shift - level))
             q = np.rint(4.0 * pts[:nb]).astype(np.int64) * step
             bkeys = (ox[:, None] + q[:, 0]) * nyq + oy[:, None] + q[:, 1]
-            origin = np.column_stack([x0 + ox * unit, y0 + oy * unit])
+            origin = np.column_stack([x0 + ox * unit[0], y0 + oy * unit[1]])
             steiner = origin[:, None, :] + (4 * step * unit) * pts[None, nb:]
             groups.append((bkeys, steiner, tris))
 
@@ -543,7 +579,7 @@ def acute_quadtree_triangulation(
     lattice, inverse = np.unique(all_keys, return_inverse=True)
     nlat = len(lattice)
     X, Y = lattice // nyq, lattice % nyq
-    xl = np.column_stack([x0 + X * unit, y0 + Y * unit])
+    xl = np.column_stack([x0 + X * unit[0], y0 + Y * unit[1]])
     xl[X == 0, 0], xl[X == nx << shift, 0] = x0, x1  # the box, exactly
     xl[Y == 0, 1], xl[Y == ny << shift, 1] = y0, y1
 
@@ -569,6 +605,7 @@ def graded_mesh(
     size: SizeLike,
     min_size: float | None = None,
     max_size: float | None = None,
+    root_size: float | None = None,
 ) -> dmesh.Mesh:
     """Distributed graded acute mesh of a box (see :func:`acute_quadtree_triangulation`).
 
@@ -579,7 +616,7 @@ def graded_mesh(
     ----------
     comm
         Communicator of the mesh.
-    box, size, min_size, max_size
+    box, size, min_size, max_size, root_size
         As in :func:`acute_quadtree_triangulation`.
 
     Returns
@@ -587,7 +624,7 @@ def graded_mesh(
     A DOLFINx mesh with degree-1 geometry.
     """
     if comm.rank == 0:
-        x, cells = acute_quadtree_triangulation(box, size, min_size, max_size)
+        x, cells = acute_quadtree_triangulation(box, size, min_size, max_size, root_size)
     else:
         x, cells = None, None
     return create_background_mesh(comm, x, cells)
@@ -623,6 +660,7 @@ def _edge_lengths(x: npt.NDArray[np.float64], cells: npt.NDArray[np.int64]) -> n
 
 
 _STENCILS = _build_stencils()
+_STRETCH = (np.array([MAX_STRETCH, 1.0]), np.array([1.0, MAX_STRETCH]))
 _ALL_ANGLES = np.concatenate([_angles(p, t).ravel() for p, t, _ in _STENCILS])
 _ALL_EDGES = np.concatenate([_edge_lengths(p, t).ravel() for p, t, _ in _STENCILS])
 #: Smallest and largest angle (degrees) of any triangle of any stencil, hence of any mesh
@@ -633,3 +671,10 @@ STENCIL_ANGLE_RANGE: tuple[float, float] = (float(_ALL_ANGLES.min()), float(_ALL
 EDGE_FACTOR: float = float(_ALL_EDGES.max())
 #: Shortest stencil edge relative to the leaf side.
 _EDGE_MIN: float = float(_ALL_EDGES.min())
+
+#: Smallest and largest angle (degrees) of the stencils stretched by up to
+#: :data:`MAX_STRETCH` in x or y (root cells of boxes that are not whole squares).
+STRETCHED_ANGLE_RANGE: tuple[float, float] = (
+    float(min(_angles(p * f, t).min() for p, t, _ in _STENCILS for f in _STRETCH)),
+    float(max(_angles(p * f, t).max() for p, t, _ in _STENCILS for f in _STRETCH)),
+)

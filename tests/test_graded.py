@@ -205,7 +205,7 @@ def test_balance(nx, ny):
         return np.where((p[:, 0] < 0.3) & (p[:, 1] < 0.2), 0.0015, 0.5)
 
     h = gr._target_size(size, side, None, None)
-    raw = gr._refine(h, 0.0, 0.0, side, nx, ny)
+    raw = gr._refine(h, 0.0, 0.0, side, side, nx, ny)
     refined = gr._balance(raw, nx, ny)
     for a, b in zip(raw, refined):  # balancing only adds splits
         assert np.isin(a, b).all()
