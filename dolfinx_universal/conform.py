@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -13,6 +14,7 @@ import numpy.typing as npt
 from dolfinx import geometry as dgeometry
 from dolfinx import mesh as dmesh
 
+from .checks import gamma_h_topology, low_quality_cells
 from .classify import (
     cell_diameters,
     conditioning_angle,
@@ -26,6 +28,7 @@ from .classify import (
 )
 from .validation import (
     MeshingError,
+    Problem,
     collective_call,
     raise_collective,
     vertex_reduce,
@@ -34,6 +37,7 @@ from .validation import (
 
 if TYPE_CHECKING:
     from .boundaries import Boundary
+    from .sizing import CurveSamples
 
 __all__ = ["IMMERSED", "OUTER", "ConformingMesh", "StraightMap", "UniversalMesh", "conform"]
 
@@ -81,6 +85,14 @@ class ConformingMesh:
     """Vertices whose position differs from the original background, ``(num_vertices,)``."""
     timings: dict[str, float] = field(default_factory=dict)
     """Wall-clock seconds of the stages (this rank)."""
+    max_conditioning_angle: float = 0.0
+    """Largest conditioning angle in degrees (global; must be below 90)."""
+    moved_angle_range: tuple[float, float] = (180.0, 0.0)
+    """Smallest and largest angle in degrees (global) of the triangles that moved."""
+    num_loops: int = 0
+    """Closed loops of Gamma_h (one per curve of Gamma, checked)."""
+    num_pieces: int = 0
+    """Connected pieces of the mesh (as many as the domain has, checked)."""
 
     @property
     def cells(self) -> npt.NDArray[np.int32]:
@@ -98,6 +110,23 @@ class ConformingMesh:
     def positively_cut(self) -> npt.NDArray[np.bool_]:
         """Positively cut cells of ``mesh`` (one vertex inside), ``(num_cells,)``."""
         return positively_cut(self.sign, self.cells)
+
+
+def _check_background(msh: dmesh.Mesh) -> None:
+    """A clear error for meshes that are not planar triangle meshes (collective)."""
+    topo = msh.topology
+    if topo.dim != 2 or topo.cell_type != dmesh.CellType.triangle:
+        raise ValueError(
+            f"universal meshes are planar triangle meshes (for now); got a {topo.dim}D mesh "
+            f"of {topo.cell_type.name} cells"
+        )
+    z = msh.geometry.x[:, 2]
+    off = msh.comm.allreduce(float(np.abs(z).max()) if len(z) else 0.0, op=MPI.MAX)
+    if msh.geometry.dim != 2 and off > 0.0:
+        raise ValueError(
+            f"the background mesh is a triangle mesh in 3D (|z| up to {off:.3g}); universal "
+            "meshes need a planar mesh: create it with 2D coordinates (gdim = 2)"
+        )
 
 
 def _local_arrays(msh: dmesh.Mesh):
@@ -157,7 +186,7 @@ def _incidence(imv, vertices: npt.NDArray, n: int) -> npt.NDArray[np.float64]:
 
 def _check_containment(background, boundary, cells, comm) -> list[str]:
     """Points of Gamma that lie in no background cell (collective)."""
-    pts = boundary.sample(512)
+    pts = collective_call(comm, "sampling the boundary", boundary.sample, 512)
     pts3 = np.zeros((len(pts), 3))
     pts3[:, :2] = pts
     tree = dgeometry.bb_tree(background, 2, entities=cells.astype(np.int32))
@@ -167,10 +196,11 @@ def _check_containment(background, boundary, cells, comm) -> list[str]:
     found = comm.allreduce(found, op=MPI.SUM) if comm.size > 1 else found
     missing = pts[found == 0]
     if len(missing) and comm.rank == 0:
-        return [
-            f"the immersed boundary leaves the background mesh near {where(missing)}: "
-            "enlarge the background so that it contains the domain's boundary"
-        ]
+        return [Problem(
+            "the immersed boundary leaves the background mesh near {where}: enlarge the "
+            "background so that it contains the domain's boundary", missing, len(missing),
+            refinable=False,
+        )]
     return []
 
 
@@ -201,6 +231,14 @@ class StraightMap:
     positively cut cell is among them."""
     num_relocated: int
     timings: dict[str, float]
+    max_conditioning_angle: float = 0.0
+    """Largest conditioning angle in degrees (global)."""
+    moved_angle_range: tuple[float, float] = (180.0, 0.0)
+    """Smallest and largest angle (degrees, global) of the kept triangles that moved."""
+    num_loops: int = 0
+    """Closed loops of Gamma_h (one per curve of Gamma)."""
+    num_pieces: int = 0
+    """Connected pieces of the kept triangles (as many as the domain has)."""
 
 
 class UniversalMesh:
@@ -227,6 +265,12 @@ class UniversalMesh:
         Graded backgrounds: use at each vertex a local size as ``h`` (the largest diameter
         of its cells, smoothed to vary by at most :data:`GRADATION` per unit length) instead
         of the global largest diameter; ``R_r`` then scales with it.
+    min_angle
+        Quality floor in degrees: conforming triangles with a smaller angle are reported
+        (0 disables the check).
+    on_low_quality
+        ``"warn"`` (a :class:`UserWarning` naming the places) or ``"raise"`` (a
+        :class:`~dolfinx_universal.validation.MeshingError`).
     """
 
     def __init__(
@@ -238,9 +282,20 @@ class UniversalMesh:
         eta: float = 0.2,
         relaxation_factor: float = 3.0,
         local_size: bool = False,
+        min_angle: float = 10.0,
+        on_low_quality: str = "warn",
     ):
+        _check_background(background)
+        eta, min_angle = float(eta), float(min_angle)
+        if not 0.0 <= eta < 1.0:  # also rejects NaN
+            raise ValueError(f"eta must lie in [0, 1) (0 disables the perturbation), got {eta}")
+        if not 0.0 <= min_angle < 60.0:
+            raise ValueError(f"min_angle must lie in [0, 60) degrees, got {min_angle}")
+        if on_low_quality not in ("warn", "raise"):
+            raise ValueError(f"on_low_quality must be 'warn' or 'raise', got {on_low_quality!r}")
         self.background = background
-        self.eta = float(eta)
+        self.eta, self.min_angle, self.on_low_quality = eta, min_angle, on_low_quality
+        self._samples: tuple[object, float, CurveSamples] | None = None
         comm = self.comm = background.comm
         topo = background.topology
         self._imv = topo.index_map(0)
@@ -322,7 +377,8 @@ class UniversalMesh:
         bad = ~(np.isfinite(phi_b) & np.isfinite(y_b).all(axis=1))
         raise_collective(
             comm,
-            [f"closest-point projection returned NaN/inf for vertices at {where(xb[bad])}"]
+            [Problem("closest-point projection returned NaN/inf for vertices at {where}",
+                     xb[bad], int(bad.sum()), refinable=False)]
             if bad.any()
             else [],
         )
@@ -368,12 +424,24 @@ class UniversalMesh:
         if comm.allreduce(int(np.count_nonzero(kept[:nco]))) == 0:
             raise MeshingError(
                 "no background vertex lies inside the domain: the domain is outside the "
-                "background mesh or smaller than its triangles; move or refine the background"
+                "background mesh or smaller than its triangles; move or refine the background",
+                collective_call(comm, "sampling the boundary", boundary.sample, 64),
             )
-        problems = self._check_classification(
+        problems, theta = self._check_classification(
             xp, s, phi, pc_owned, u, v, w, pe_count, in_kept, kept
         )
         raise_collective(comm, problems)
+        near_cells = near_cells.astype(np.int32)
+        raise_collective(comm, _check_containment(self.background, boundary, near_cells, comm))
+        max_theta = comm.allreduce(theta, op=MPI.MAX)
+        ev = self._outer_vertices
+        far_kept = comm.allreduce(bool(np.any(s[ev] < 0)), op=MPI.LOR)
+        samples = self._curve_samples(boundary, band_idx)
+        topo_problems, num_loops, num_pieces = gamma_h_topology(
+            comm, imv.local_to_global(np.concatenate([u, v]).astype(np.int32)).reshape(2, -1).T,
+            xp[u], xp[v], xp[w], samples, far_kept,
+        )
+        raise_collective(comm, topo_problems)
 
         # M_h moves band vertices only.
         y = xp.copy()
@@ -385,14 +453,50 @@ class UniversalMesh:
         moved[band_idx] = np.any(y[band_idx] != x[band_idx], axis=1)
         problems = self._check_output(y, moved, near_kept, in_kept)
         raise_collective(comm, problems)
-        near_cells = near_cells.astype(np.int32)
-        raise_collective(comm, _check_containment(self.background, boundary, near_cells, comm))
+        moved_kept = c2v[near_kept]
+        moved_kept = moved_kept[moved[moved_kept].any(axis=1)]
+        low, lo, hi = low_quality_cells(y, moved_kept, self.min_angle)
+        self._report_quality(low)
         timings["map"] = time.perf_counter() - t2
         return StraightMap(
             sign=s, phi=phi, closest=closest, x=xp, y=y, on_positive_edge=on_pe, kept=kept,
             moved=moved, near_cells=near_all.astype(np.int32), num_relocated=num_relocated,
-            timings=timings,
+            timings=timings, max_conditioning_angle=float(np.degrees(max_theta)),
+            moved_angle_range=(comm.allreduce(lo, op=MPI.MIN), comm.allreduce(hi, op=MPI.MAX)),
+            num_loops=num_loops, num_pieces=num_pieces,
         )
+
+    def _curve_samples(self, boundary: Boundary, band_idx: npt.NDArray) -> CurveSamples:
+        """Dense labelled samples of Gamma, spaced well below the mesh size near it (cached
+        for the last boundary)."""
+        from .sizing import curve_samples
+
+        hmin = self.comm.allreduce(
+            float(self.h[band_idx].min()) if len(band_idx) else np.inf, op=MPI.MIN
+        )
+        if not np.isfinite(hmin):  # no vertex near Gamma (an error is reported anyway)
+            hmin = float(np.max(self.h)) if len(self.h) else 1.0
+            hmin = self.comm.allreduce(hmin, op=MPI.MAX)
+        spacing = 0.25 * hmin
+        cached = self._samples
+        if cached is not None and cached[0] is boundary and cached[1] <= spacing:
+            return cached[2]
+        samples = collective_call(
+            self.comm, "sampling the boundary", curve_samples, boundary, spacing
+        )
+        self._samples = (boundary, spacing, samples)
+        return samples
+
+    def _report_quality(self, low: Problem | None) -> None:
+        """Warn about (or raise for) triangles below the quality floor (collective)."""
+        if self.on_low_quality == "raise":
+            raise_collective(self.comm, [low] if low is not None else [])
+            return
+        try:
+            raise_collective(self.comm, [low] if low is not None else [])
+        except MeshingError as e:
+            if self.comm.rank == 0:
+                warnings.warn(str(e), UserWarning, stacklevel=4)
 
     def conform(self, boundary: Boundary) -> ConformingMesh:
         """The straight conforming mesh of the domain bounded by ``boundary`` (collective).
@@ -446,23 +550,30 @@ class UniversalMesh:
             num_relocated=sm.num_relocated,
             moved=moved[vmap],
             timings=timings,
+            max_conditioning_angle=sm.max_conditioning_angle,
+            moved_angle_range=sm.moved_angle_range,
+            num_loops=sm.num_loops,
+            num_pieces=sm.num_pieces,
         )
 
     def _check_classification(
         self, xp, s, phi, pc_owned, u, v, w, pe_count, in_kept, kept
     ) -> list[str]:
-        """Local problems with the classification (SPEC §2, §6)."""
+        """Local problems with the classification (SPEC §2, §6), and the largest
+        conditioning angle (radians, 0 without positively cut cells)."""
         problems = []
+        theta_max = 0.0
         if len(pc_owned):
             theta = conditioning_angle(xp, phi, u, v, w)
+            theta_max = float(theta.max())
             bad = theta >= np.pi / 2 - 1e-12
             if bad.any():
                 p = xp[proximal_vertex(xp, phi, u[bad], v[bad], w[bad])]
-                problems.append(
-                    f"conditioning angle of {np.degrees(theta[bad]).max():.1f} degrees (must "
-                    f"be < 90) in positively cut triangles near {where(p)}: use a background "
-                    "mesh that is acute near the boundary (e.g. equilateral)"
-                )
+                problems.append(Problem(
+                    "conditioning angle of 90 degrees or more in {count} positively cut "
+                    "triangles near {where}: use a background mesh that is acute near the "
+                    "boundary (e.g. equilateral or graded_mesh)", p, int(bad.sum()),
+                ))
             # The positive edge is the facet opposite the inside vertex.
             k = np.argmin(s[self._c2v[pc_owned]], axis=1)
             f = self._c2f[pc_owned, k]
@@ -470,36 +581,39 @@ class UniversalMesh:
             ncell = off[f + 1] - off[f]
             lone = ncell == 1
             if lone.any():
-                problems.append(
-                    "the domain reaches the boundary of the background mesh near "
-                    f"{where(0.5 * (xp[u[lone]] + xp[v[lone]]))}: enlarge the background"
-                )
+                problems.append(Problem(
+                    "the domain reaches the boundary of the background mesh near {where}: "
+                    "enlarge the background", 0.5 * (xp[u[lone]] + xp[v[lone]]),
+                    int(lone.sum()), refinable=False,
+                ))
             two = np.flatnonzero(ncell == 2)
             c0, c1 = self._f2c[off[f[two]]], self._f2c[off[f[two]] + 1]
             other = np.where(c0 == pc_owned[two], c1, c0)
             shared = two[kept[other]]
             if len(shared):
-                problems.append(
-                    "Gamma crosses both triangles beside the positive edge near "
-                    f"{where(0.5 * (xp[u[shared]] + xp[v[shared]]))} (a thin part of the domain "
-                    "or of its exterior): the background is too coarse there, refine near it"
-                )
+                problems.append(Problem(
+                    "Gamma crosses both triangles beside the positive edge near {where} (a "
+                    "thin part of the domain or of its exterior): the background is too "
+                    "coarse there, refine near it", 0.5 * (xp[u[shared]] + xp[v[shared]]),
+                    len(shared),
+                ))
         nvo = self._imv.size_local
         chain = (pe_count[:nvo] > 0) & (pe_count[:nvo] != 2)
         if chain.any():
-            problems.append(
+            problems.append(Problem(
                 "Gamma_h (the union of positive edges) is not a set of closed simple curves at "
-                f"vertices {where(xp[:nvo][chain])}: the background is too coarse for the "
-                "boundary's curvature or for the gap between its parts there; refine near them"
-            )
+                "vertices {where}: the background is too coarse for the boundary's curvature "
+                "or for the gap between its parts there; refine near them", xp[:nvo][chain],
+                int(chain.sum()),
+            ))
         lost = in_kept[:nvo] & (s[:nvo] > 0) & (pe_count[:nvo] == 0)
         if lost.any():
-            problems.append(
-                f"vertices outside the domain at {where(xp[:nvo][lost])} belong to kept "
-                "triangles but to no positive edge, so they would not be snapped: Gamma is "
-                "under-resolved there; refine the background near them"
-            )
-        return problems
+            problems.append(Problem(
+                "vertices outside the domain at {where} belong to kept triangles but to no "
+                "positive edge, so they would not be snapped: Gamma is under-resolved there; "
+                "refine the background near them", xp[:nvo][lost], int(lost.sum()),
+            ))
+        return problems, theta_max
 
     def _check_output(self, y, moved, kc, in_kept) -> list[str]:
         """Local problems with the conforming triangles: inversion, degeneracy, moved outer
@@ -513,18 +627,19 @@ class UniversalMesh:
         inverted = (np.sign(a1) != np.sign(a0)) | (np.abs(a1) <= 1e-10 * d2)
         if inverted.any():
             centre = y[cells[inverted]].mean(axis=1)
-            problems.append(
-                f"{int(inverted.sum())} conforming triangles would be inverted or degenerate "
-                f"near {where(centre)}: the background is too coarse or not acute there; "
-                "refine near those points or use an acute (e.g. equilateral) background"
-            )
+            problems.append(Problem(
+                "{count} conforming triangles would be inverted or degenerate near {where}: "
+                "the background is too coarse or not acute there; refine near those points "
+                "or use an acute (e.g. equilateral) background", centre, int(inverted.sum()),
+            ))
         ev = self._outer_vertices
         shifted = ev[in_kept[ev] & moved[ev]]
         if len(shifted):
-            problems.append(
-                f"the boundary of the background mesh would move at {where(x[shifted])}: "
-                "Gamma comes within R_r of it there; enlarge the background or reduce R_r"
-            )
+            problems.append(Problem(
+                "the boundary of the background mesh would move at {where}: Gamma comes "
+                "within R_r of it there; enlarge the background or reduce R_r", x[shifted],
+                len(shifted), refinable=False,
+            ))
         return problems
 
 
@@ -537,6 +652,8 @@ def conform(
     eta: float = 0.2,
     relaxation_factor: float = 3.0,
     local_size: bool = False,
+    min_angle: float = 10.0,
+    on_low_quality: str = "warn",
 ) -> ConformingMesh:
     """Conform a background triangulation to the domain bounded by ``boundary`` (SPEC §2-3).
 
@@ -550,7 +667,7 @@ def conform(
         distributed with shared-facet ghosts (see :mod:`dolfinx_universal.background`).
     boundary
         The domain (signs, closest points, normals).
-    R_r, alpha, eta, relaxation_factor, local_size
+    R_r, alpha, eta, relaxation_factor, local_size, min_angle, on_low_quality
         See :class:`UniversalMesh`.
 
     Returns
@@ -565,7 +682,7 @@ def conform(
     """
     um = UniversalMesh(
         background, R_r=R_r, alpha=alpha, eta=eta, relaxation_factor=relaxation_factor,
-        local_size=local_size,
+        local_size=local_size, min_angle=min_angle, on_low_quality=on_low_quality,
     )
     return um.conform(boundary)
 

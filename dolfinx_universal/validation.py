@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
-from typing import Any, TypeVar
+from typing import Any, NamedTuple, TypeVar
 
 from mpi4py import MPI
 
@@ -11,13 +11,38 @@ import numpy as np
 import numpy.typing as npt
 from dolfinx import la
 
-__all__ = ["MeshingError", "collective_call", "raise_collective", "vertex_reduce", "where"]
+__all__ = [
+    "MeshingError",
+    "Problem",
+    "collective_call",
+    "raise_collective",
+    "vertex_reduce",
+    "where",
+]
 
 T = TypeVar("T")
 
 
 class MeshingError(RuntimeError):
-    """The domain cannot be meshed on this background; the message says where and what to do."""
+    """The domain cannot be meshed on this background; the message says where and what to do.
+
+    Parameters
+    ----------
+    message
+        What is wrong, where, and what to do.
+    points
+        Places of the problem ``(n, 2)`` (the same on every rank when raised collectively):
+        where :func:`~dolfinx_universal.domain.mesh_domain` refines the background.
+    refinable
+        False when no background size can fix the problem (e.g. the domain leaves the box).
+    """
+
+    def __init__(
+        self, message: str, points: npt.ArrayLike | None = None, refinable: bool = True
+    ) -> None:
+        super().__init__(message)
+        self.points = np.zeros((0, 2)) if points is None else np.asarray(points, float)
+        self.refinable = bool(refinable)
 
 
 def where(points: npt.ArrayLike, limit: int = 3) -> str:
@@ -27,19 +52,60 @@ def where(points: npt.ArrayLike, limit: int = 3) -> str:
     return text + (f" and {len(p) - limit} more" if len(p) > limit else "")
 
 
+class Problem(NamedTuple):
+    """One rank's report of a problem: a message template, the places and their count.
+
+    ``message`` may contain ``{count}`` (replaced by the global count) and ``{where}``
+    (replaced by up to three of the places of all ranks), so that the ranks' reports of one
+    kind merge into one message.
+    """
+
+    message: str
+    points: npt.NDArray[np.float64] = np.zeros((0, 2))
+    count: int = 1
+    refinable: bool = True
+
+
+def _literal(message: str) -> str:
+    """A message as a template that formats to itself."""
+    return message.replace("{", "{{").replace("}", "}}")
+
+
 def raise_collective(
-    comm: MPI.Comm, problems: Iterable[str], error: type[Exception] = MeshingError
+    comm: MPI.Comm,
+    problems: Iterable[str | Problem],
+    error: type[Exception] = MeshingError,
 ) -> None:
     """Raise ``error`` on every rank if any rank reports a problem; otherwise return.
 
-    Each rank passes its own (possibly empty) list of messages. This is a collective call:
+    Each rank passes its own (possibly empty) list of problems: plain messages or
+    :class:`Problem` records. Records with the same message template are merged over the
+    ranks (counts added, places concatenated in rank order). This is a collective call:
     every rank must call it, so that no rank is left waiting in a later collective.
     """
-    local = list(problems)[:5]
-    found = [m for msgs in comm.allgather(local) for m in msgs]
-    if found:
-        unique = list(dict.fromkeys(found))
-        raise error("\n".join(unique[:5]))
+    local = [p if isinstance(p, Problem) else Problem(_literal(p), np.zeros((0, 2)), 0)
+             for p in problems]
+    gathered = comm.allgather([(p.message, np.asarray(p.points, float).reshape(-1, 2),
+                                 p.count, p.refinable) for p in local])
+    merged: dict[str, list] = {}
+    for msgs in gathered:
+        for message, pts, count, refinable in msgs:
+            entry = merged.setdefault(message, [[], 0, True])
+            entry[0].append(pts)
+            entry[1] += count
+            entry[2] &= refinable
+    if not merged:
+        return
+    texts, points, refinable = [], [], True
+    for message, (pts, count, ref) in list(merged.items())[:5]:
+        p = np.concatenate(pts) if pts else np.zeros((0, 2))
+        texts.append(message.format(count=count, where=where(p)))
+        points.append(p)
+        refinable &= ref
+    text = "\n".join(texts)
+    if issubclass(error, MeshingError):
+        raise error(text, np.concatenate(points), refinable)
+    raise error(text)
 
 
 def collective_call(comm: MPI.Comm, what: str, fn: Callable[..., T], *args: Any) -> T:
@@ -48,10 +114,14 @@ def collective_call(comm: MPI.Comm, what: str, fn: Callable[..., T], *args: Any)
     User callbacks (boundaries) may fail on the points of one rank only; raising there alone
     would leave the other ranks waiting in the next collective call.
     """
+    problems: list[Problem] = []
     try:
-        result, problems = fn(*args), []
-    except (ValueError, RuntimeError, ArithmeticError) as e:
-        result, problems = None, [f"{what} failed: {e}"]
+        result = fn(*args)
+    except MeshingError as e:
+        result, problems = None, [Problem(_literal(str(e)), e.points, 1, e.refinable)]
+    except Exception as e:  # any failure of a user callback, on any subset of the ranks
+        text = _literal(f"{what} failed: {type(e).__name__}: {e}")
+        result, problems = None, [Problem(text, np.zeros((0, 2)), 1, False)]
     raise_collective(comm, problems)
     return result  # type: ignore[return-value]
 

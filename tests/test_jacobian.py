@@ -1,0 +1,194 @@
+"""Proven Jacobian bounds of curved triangles: Bernstein coefficients and subdivision."""
+
+import time
+
+import numpy as np
+import pytest
+
+from dolfinx_universal.curved import jacobian_ratio, reference_nodes
+from dolfinx_universal.jacobian import (
+    _subdivision,
+    bernstein_basis,
+    bernstein_coefficients,
+    bernstein_indices,
+    jacobian_bounds,
+    jacobian_determinant,
+)
+
+TRI = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
+CHILDREN = np.array(
+    [
+        [[0.0, 0.0], [0.5, 0.0], [0.0, 0.5]],
+        [[0.5, 0.0], [1.0, 0.0], [0.5, 0.5]],
+        [[0.0, 0.5], [0.5, 0.5], [0.0, 1.0]],
+        [[0.5, 0.5], [0.0, 0.5], [0.5, 0.0]],
+    ]
+)
+
+# Cells whose det J is negative only between the points of the 4q lattice: q = 2 dips near
+# (0.28, 0) on edge 2, between the lattice points 1/4 and 3/8; q = 3 near (0.46, 0.54) on
+# edge 0, between 5/12 and 1/2 (moves of edge nodes, as a boundary edge curving inwards).
+FOLDS = {2: {3: (0.88, 1.84), 5: (0.32, 1.68)}, 3: {3: (-0.32, 0.32), 4: (-0.036, 0.214)}}
+
+
+def lattice(n: int) -> np.ndarray:
+    i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+    keep = i + j <= n
+    return np.column_stack([i[keep], j[keep]]) / n
+
+
+def affine_det(nodes: np.ndarray) -> np.ndarray:
+    a, b = nodes[:, 1] - nodes[:, 0], nodes[:, 2] - nodes[:, 0]
+    return a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
+
+
+def sampled_min(nodes: np.ndarray, degree: int, n: int) -> np.ndarray:
+    """Smallest ``det J / det J_affine`` on the lattice of n subdivisions (the former check
+    used ``n = 4q``)."""
+    det = jacobian_determinant(nodes, degree, lattice(n))
+    return (det / affine_det(nodes)[:, None]).min(axis=1)
+
+
+def random_cells(degree: int, m: int, rng: np.random.Generator, amp: float) -> np.ndarray:
+    nodes = reference_nodes(degree) @ TRI
+    return nodes + amp * rng.standard_normal((m,) + nodes.shape)
+
+
+def folded(degree: int, scale: float = 1.0) -> np.ndarray:
+    nodes = reference_nodes(degree) @ TRI
+    for i, move in FOLDS[degree].items():
+        nodes[i] += scale * np.array(move)
+    return nodes[None]
+
+
+def random_points(rng: np.random.Generator, n: int) -> np.ndarray:
+    p = rng.random((2 * n, 2))
+    return p[p.sum(axis=1) <= 1.0][:n]
+
+
+@pytest.mark.parametrize("degree", [1, 2, 3, 4, 5])
+def test_bernstein_coefficients_reproduce_det(degree):
+    rng = np.random.default_rng(degree)
+    nodes = random_cells(degree, 40, rng, 0.08)
+    pts = random_points(rng, 100)
+    c = bernstein_coefficients(nodes, degree)
+    order = 2 * (degree - 1)
+    assert c.shape == (40, (order + 1) * (order + 2) // 2) == (40, len(bernstein_indices(order)))
+    exact = jacobian_determinant(nodes, degree, pts)
+    assert np.abs(c @ bernstein_basis(order, pts).T - exact).max() < 1e-12 * np.abs(exact).max()
+    # The corner coefficients are the values at the corners.
+    alpha = bernstein_indices(order)
+    corners = [int(np.flatnonzero((alpha == order * e).all(1))[0]) for e in np.eye(3, dtype=int)]
+    assert np.allclose(c[:, corners], jacobian_determinant(nodes, degree, TRI), atol=1e-12)
+
+
+@pytest.mark.parametrize("order", [0, 2, 4, 6, 8])
+def test_subdivision_is_exact(order):
+    """The child coefficients reproduce the parent polynomial on each child; the operators are
+    convex combinations (nonnegative, partition of unity)."""
+    rng = np.random.default_rng(order)
+    nb = len(bernstein_indices(order))
+    c = rng.standard_normal((3, nb))
+    split = _subdivision(order).reshape(nb, 4, 2, nb)
+    ref = random_points(rng, 30)  # in the child's reference coordinates
+    lam = np.column_stack([1.0 - ref.sum(axis=1), ref])
+    for k, child in enumerate(CHILDREN):
+        parent_pts = lam @ child
+        want = c @ bernstein_basis(order, parent_pts).T
+        got = (c @ split[:, k, 1]) @ bernstein_basis(order, ref).T
+        assert np.abs(got - want).max() < 1e-12
+        ctrl = bernstein_indices(order) / max(order, 1) @ child
+        assert np.allclose(c @ split[:, k, 0], c @ bernstein_basis(order, ctrl).T, atol=1e-12)
+    assert split[:, :, 1].min() >= 0.0
+    assert np.abs(split[:, :, 1].sum(axis=0) - 1.0).max() == 0.0
+
+
+@pytest.mark.parametrize("degree", [2, 3, 4])
+def test_bounds_bracket_the_minimum(degree):
+    rng = np.random.default_rng(10 + degree)
+    nodes = np.concatenate([random_cells(degree, 100, rng, a) for a in (0.02, 0.06, 0.15)])
+    lower, upper = jacobian_bounds(nodes, degree)
+    dense = sampled_min(nodes, degree, 200)
+    assert (lower <= dense + 1e-12).all()
+    assert (lower <= upper).all()
+    assert (upper - lower <= 0.05 * np.maximum(np.abs(upper), 0.01) + 1e-12).all()  # rtol
+    assert (lower > 0).any() and (upper <= 0).any()  # both kinds of cell are in the sample
+    # With few levels every evaluated point lies on the lattice of order * 2^depth
+    # subdivisions: its minimum is bracketed exactly.
+    lower, upper = jacobian_bounds(nodes, degree, max_depth=3)
+    dense = sampled_min(nodes, degree, 2 * (degree - 1) * 2**3)
+    assert (lower <= dense + 1e-12).all() and (dense <= upper + 1e-12).all()
+
+
+@pytest.mark.parametrize("degree", [2, 3])
+def test_inversion_between_lattice_points_is_caught(degree):
+    nodes = folded(degree)
+    assert sampled_min(nodes, degree, 4 * degree)[0] > 0.01  # the 4q lattice says valid
+    dense = sampled_min(nodes, degree, 400)[0]
+    assert dense < -0.005  # but det J is negative in between
+    lower, upper = jacobian_bounds(nodes, degree)
+    assert lower[0] <= dense <= upper[0] + 1e-3
+    assert upper[0] < 0  # proven inverted: a negative value was found
+    assert jacobian_ratio(nodes, degree)[0] < 0
+
+
+@pytest.mark.parametrize("degree", [2, 3])
+def test_nearly_degenerate_cell_is_proven_valid(degree):
+    nodes = folded(degree, 0.99)
+    dense = sampled_min(nodes, degree, 400)[0]
+    assert 0 < dense < 0.02
+    assert jacobian_bounds(nodes, degree, max_depth=0)[0][0] < 0  # the coefficients alone fail
+    lower, upper = jacobian_bounds(nodes, degree)
+    assert 0 < lower[0] <= dense <= upper[0] + 1e-3
+    assert upper[0] - lower[0] <= 0.05 * upper[0]
+    assert jacobian_ratio(nodes, degree)[0] > 0
+
+
+def test_threshold_and_rtol_semantics():
+    nodes = folded(3, 0.9)
+    dense = sampled_min(nodes, 3, 400)[0]
+    # rtol=inf only decides the threshold: valid at 0, not above the minimum.
+    lower, upper = jacobian_bounds(nodes, 3, rtol=np.inf)
+    assert 0 < lower[0] <= dense
+    lower, upper = jacobian_bounds(nodes, 3, threshold=0.9 * dense, rtol=np.inf)
+    assert 0.9 * dense < lower[0] <= dense
+    lower, upper = jacobian_bounds(nodes, 3, threshold=1.1 * dense, rtol=np.inf)
+    assert upper[0] <= 1.1 * dense
+    # max_depth reached while undecided: the bound stays at or below the threshold.
+    lower, upper = jacobian_bounds(nodes, 3, threshold=0.999 * dense, max_depth=1)
+    assert lower[0] <= 0.999 * dense < upper[0]
+    assert jacobian_ratio(nodes, 3, threshold=0.9 * dense)[0] > 0.9 * dense
+
+
+def test_affine_degenerate_and_empty_cells():
+    for degree in (1, 2, 3):
+        nodes = reference_nodes(degree) @ (TRI * [2.0, 0.5])
+        lower, upper = jacobian_bounds(nodes[None], degree)
+        assert lower == pytest.approx([1.0]) and upper == pytest.approx([1.0])
+        flat = reference_nodes(degree) @ np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])
+        lower, upper = jacobian_bounds(flat[None], degree)
+        assert lower[0] == upper[0] == -np.inf
+        empty = np.zeros((0, len(nodes), 2))
+        assert [b.shape for b in jacobian_bounds(empty, degree)] == [(0,), (0,)]
+    nodes = reference_nodes(1) @ TRI[[0, 2, 1]]  # clockwise: ratio still 1
+    assert jacobian_bounds(nodes[None], 1)[0] == pytest.approx([1.0])
+
+
+def test_resolution_is_deprecated():
+    nodes = reference_nodes(2) @ TRI
+    with pytest.warns(DeprecationWarning):
+        assert jacobian_ratio(nodes[None], 2, 8)[0] == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("degree", [2, 3])
+def test_many_cells(degree):
+    """10 000 mildly curved cells at once (prints the time; no timed assert)."""
+    rng = np.random.default_rng(degree)
+    nodes = reference_nodes(degree) @ TRI
+    bubble = np.arange(len(nodes)) >= 3
+    nodes = nodes + 0.02 * rng.standard_normal((10_000,) + nodes.shape) * bubble[:, None]
+    jacobian_bounds(nodes[:10], degree)
+    t = time.perf_counter()
+    lower, upper = jacobian_bounds(nodes, degree)
+    print(f"q={degree}: 10000 cells in {1e3 * (time.perf_counter() - t):.1f} ms")
+    assert (lower <= upper).all() and (lower > 0).mean() > 0.9
