@@ -22,6 +22,7 @@ from .classify import conditioning_angle, positive_edges, positively_cut
 from .conform import IMMERSED, OUTER, ConformingMesh, UniversalMesh, conform
 from .constraints import SlipConstraint
 from .curved import CurvedMesh, boundary_dof_data, curved_mesh
+from .domain import Certificate, MeshedDomain, mesh_domain
 from .graded import graded_mesh
 from .moving import MovingDomain
 from .quality import quality_report
@@ -36,12 +37,14 @@ __all__ = [
     "IMMERSED",
     "OUTER",
     "Boundary",
+    "Certificate",
     "Circle",
     "ConformingMesh",
     "CurvedMesh",
     "Domain",
     "Ellipse",
     "ImplicitCurve",
+    "MeshedDomain",
     "MeshingError",
     "MovingDomain",
     "PeriodicSpline",
@@ -55,6 +58,7 @@ __all__ = [
     "curved_mesh",
     "equilateral_mesh",
     "graded_mesh",
+    "mesh_domain",
     "positive_edges",
     "positively_cut",
     "quality_report",

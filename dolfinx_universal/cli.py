@@ -224,13 +224,15 @@ def build_parser() -> argparse.ArgumentParser:
         prog=PROG,
         description=(
             "Mesh the domain bounded by a closed curve with a universal mesh (Rangarajan & "
-            "Lew 2014): an equilateral background triangulation of the curve's bounding box "
-            "is conformed to the curve by snapping the vertices of the positive edges onto "
-            "it and relaxing nearby interior vertices (no vertex added). Optionally the "
-            "cells along the curve are curved (degree-K Lagrange geometry). Writes mesh.bp "
-            "(VTX), mesh.xdmf (grids 'mesh' and 'facet_tags': 1 = immersed boundary, 2 = "
-            "outer; K <= 2 only), "
-            "mesh.png and summary.json. Lengths are in the units of the curve's coordinates. "
+            "Lew 2014): a background triangulation of the curve's bounding box, graded "
+            "automatically from the curve's curvature and feature sizes (or equilateral with "
+            "--uniform), is conformed to the curve by snapping the vertices of the positive "
+            "edges onto it and relaxing nearby interior vertices (no vertex added); where a "
+            "validity check fails the background is refined there and the curve meshed "
+            "again. Optionally the cells along the curve are curved (degree-K Lagrange "
+            "geometry). Writes mesh.bp (VTX), mesh.xdmf (grids 'mesh' and 'facet_tags': 1 = "
+            "immersed boundary, 2 = outer; K <= 2 only), mesh.png and summary.json (with the "
+            "validity certificate). Lengths are in the units of the curve's coordinates. "
             "Runs under mpirun (only rank 0 prints and plots)."
         ),
         formatter_class=_Formatter,
@@ -279,8 +281,24 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         default=None,
         metavar="H",
-        help="edge length of the equilateral background triangles (length units) "
-        "[default: 1/20 of the larger side of the shape's bounding box, to 3 digits]",
+        help="largest mesh size (length units): the background is graded from the curve's "
+        "curvature and feature sizes up to H and refined where a check fails; with "
+        "--uniform, the edge length of the equilateral background [default: 1/10 (graded) "
+        "or 1/20 (--uniform) of the larger side of the shape's bounding box, to 3 digits]",
+    )
+    m.add_argument(
+        "--uniform",
+        action="store_true",
+        help="use one equilateral background of edge H instead of the automatically sized "
+        "graded one (fails with an error where H is too coarse for the curve)",
+    )
+    m.add_argument(
+        "--min-angle",
+        type=float,
+        default=10.0,
+        metavar="DEG",
+        help="quality floor: smallest angle of the conforming triangles (graded mode refines "
+        "below it; --uniform warns)",
     )
     m.add_argument(
         "--margin",
@@ -414,6 +432,11 @@ def _check_numbers(args: argparse.Namespace) -> None:
                                 f"got {args.alpha}")
     if args.degree < 1:
         raise ArgumentError(f"--degree must be >= 1, got {args.degree}")
+    if not (math.isfinite(args.min_angle) and 0 <= args.min_angle < 60):
+        raise ArgumentError(f"--min-angle must lie in [0, 60) degrees, got {args.min_angle}")
+    if args.alpha is not None and not args.uniform:
+        raise ArgumentError("--alpha applies to --uniform only (graded backgrounds use the "
+                            "local default (1 + h/R_r)^-1)")
 
 
 # --------------------------------------------------------------------------------------------
@@ -458,6 +481,7 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
     from .background import equilateral_mesh
     from .conform import IMMERSED, OUTER, conform
     from .curved import curved_mesh
+    from .domain import _auto_box, mesh_domain
     from .quality import quality_report
     from .validation import MeshingError
 
@@ -469,9 +493,14 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
     extent = float((bbox[1] - bbox[0]).max())
     if not (np.all(np.isfinite(bbox)) and extent > 0):
         raise ArgumentError(f"the shape has an empty or invalid bounding box {bbox.tolist()}")
-    h = float(f"{extent / 20.0:.3g}") if args.h is None else float(args.h)
+    divisor = 20.0 if args.uniform else 10.0
+    h = float(f"{extent / divisor:.3g}") if args.h is None else float(args.h)
     margin = (args.rr + 1.0) * h if args.margin is None else float(args.margin)
-    box = np.array([bbox[0] - margin, bbox[1] + margin])
+    if args.uniform or args.margin is not None:
+        box = np.array([bbox[0] - margin, bbox[1] + margin])
+    else:
+        box = _auto_box(boundary, h, args.rr)
+        margin = float(bbox[0, 0] - box[0, 0])
     size = box[1] - box[0]
     n_estimate = 2.0 * (size[0] / h + 2) * (size[1] / (h * math.sqrt(3) / 2) + 2)
     if n_estimate > 5e7:
@@ -479,15 +508,38 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
             f"--h {h:.4g} would give ~{n_estimate:.3g} background cells; use a larger h"
         )
 
-    t = time.perf_counter()
-    background = equilateral_mesh(comm, box.tolist(), h)
-    timings["background"] = time.perf_counter() - t
-
+    certificate = None
+    curved_info: dict[str, Any] = {}
     t = time.perf_counter()
     try:
-        cm = conform(background, boundary, alpha=args.alpha, eta=args.eta,
-                     relaxation_factor=args.rr)
-    except ValueError as e:  # parameter checks of conform (collective)
+        if args.uniform:
+            background = equilateral_mesh(comm, box.tolist(), h)
+            timings["background"] = time.perf_counter() - t
+            t = time.perf_counter()
+            cm = conform(background, boundary, alpha=args.alpha, eta=args.eta,
+                         relaxation_factor=args.rr, min_angle=args.min_angle)
+            timings["conform"] = time.perf_counter() - t
+            msh, tags = cm.mesh, cm.facet_tags
+            if args.degree > 1:
+                t = time.perf_counter()
+                curved = curved_mesh(cm, args.degree, args.map)
+                msh, tags = curved.mesh, curved.facet_tags
+                curved_info["min_jacobian_ratio"] = float(curved.min_jacobian_ratio)
+                timings["curved"] = time.perf_counter() - t
+        else:
+            md = mesh_domain(
+                comm, boundary, h, degree=args.degree, map=args.map,
+                box=box if args.margin is not None else None, eta=args.eta,
+                relaxation_factor=args.rr, min_angle=args.min_angle,
+            )
+            cm, msh, tags, background = md.conforming, md.mesh, md.facet_tags, md.background
+            certificate = md.certificate
+            for stage, seconds in md.timings.items():
+                if stage != "total":
+                    timings[stage] = seconds
+            if md.curved is not None:
+                curved_info["min_jacobian_ratio"] = float(md.curved.min_jacobian_ratio)
+    except ValueError as e:  # parameter checks (collective)
         if isinstance(e, MeshingError):
             raise
         raise ArgumentError(str(e)) from None
@@ -496,22 +548,12 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
             f"no background vertex lies inside the domain: h = {h:.4g} is too coarse for a "
             f"shape of extent {extent:.4g}; use a smaller --h"
         )
-    timings["conform"] = time.perf_counter() - t
     for stage, seconds in cm.timings.items():
         timings[f"conform.{stage}"] = seconds
 
     t = time.perf_counter()
     quality = quality_report(cm)
     timings["quality"] = time.perf_counter() - t
-
-    msh, tags = cm.mesh, cm.facet_tags
-    curved_info: dict[str, Any] = {}
-    if args.degree > 1:
-        t = time.perf_counter()
-        curved = curved_mesh(cm, args.degree, args.map)
-        msh, tags = curved.mesh, curved.facet_tags
-        curved_info["min_jacobian_ratio"] = float(curved.min_jacobian_ratio)
-        timings["curved"] = time.perf_counter() - t
 
     # Output files.
     t = time.perf_counter()
@@ -573,12 +615,15 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
         "facets": {"tags": {"immersed": IMMERSED, "outer": OUTER}, "counts": facets},
         "quality": quality,
         **({"curved": curved_info} if curved_info else {}),
+        "background": "equilateral" if args.uniform else "graded (mesh_domain)",
+        "certificate": certificate.as_dict() if certificate is not None else None,
         "mpi_size": comm.size,
         "dolfinx_version": dolfinx.__version__,
         "files": files,
         "timings_s": timings,
     }
     summary = _json_safe(summary)
+    summary["certificate_text"] = str(certificate) if certificate is not None else None
     if comm.rank == 0:
         with open(out / "summary.json", "w") as fh:
             json.dump(summary, fh, indent=2, allow_nan=False)
@@ -642,4 +687,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             f"{summary['h']:.4g}; wrote {', '.join(summary['files'])} to {args.out}",
             flush=True,
         )
+        if summary["certificate"] is not None:
+            print(summary["certificate_text"], flush=True)
     return 0

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 from mpi4py import MPI
 
@@ -22,7 +23,20 @@ from .classify import interior_angles, positively_cut
 from .conform import UniversalMesh
 from .curved import MAPS, jacobian_ratio, map_nodes
 from .quality import cell_quality, edge_ratio, radius_ratio
-from .validation import collective_call, raise_collective, vertex_reduce, where
+from .validation import (
+    MeshingError,
+    Problem,
+    collective_call,
+    raise_collective,
+    vertex_reduce,
+    where,
+)
+
+if TYPE_CHECKING:
+    from .sizing import SizeField
+
+COVERAGE_TOLERANCE = 1.5
+"""A step may ask for sizes this much finer than the background built for the motion."""
 
 __all__ = ["MovingDomain", "StepReport", "count_jit_compilations", "reassemble"]
 
@@ -70,9 +84,11 @@ class MovingDomain:
     map
         ``"I"``/``"G"`` (blend ``G_h``) or ``"I~"``/``"G~"`` (``G~_h``); see
         :data:`~dolfinx_universal.curved.MAPS`.
-    R_r, alpha, eta, relaxation_factor, local_size
+    R_r, alpha, eta, relaxation_factor, local_size, min_angle, on_low_quality
         See :class:`~dolfinx_universal.conform.UniversalMesh` (``local_size=True`` for graded
         backgrounds).
+
+    See :meth:`from_motion` for a background sized automatically for a given motion.
     """
 
     def __init__(
@@ -86,13 +102,17 @@ class MovingDomain:
         eta: float = 0.2,
         relaxation_factor: float = 3.0,
         local_size: bool = False,
+        min_angle: float = 10.0,
+        on_low_quality: str = "warn",
     ):
         if map not in MAPS:
             raise ValueError(f"unknown map {map!r}: choose one of {MAPS}")
         self.universal = UniversalMesh(
             background, R_r=R_r, alpha=alpha, eta=eta, relaxation_factor=relaxation_factor,
-            local_size=local_size,
+            local_size=local_size, min_angle=min_angle, on_low_quality=on_low_quality,
         )
+        self.refinement_rounds = 0
+        """Local refinements made by :meth:`from_motion` (0 otherwise)."""
         self.degree, self.map = int(degree), map
         self._kind = "G" if map in ("I", "G") else "G~"
         ce = fem.coordinate_element(
@@ -119,6 +139,99 @@ class MovingDomain:
         self.active_cells = np.empty(0, dtype=np.int32)
         """Cells of ``T_h^sub`` (process-local, owned and ghost)."""
         self.steps: list[StepReport] = []
+        self._coverage: tuple[SizeField, npt.NDArray[np.float64], int, float | None] | None = None
+
+    @classmethod
+    def from_motion(
+        cls,
+        comm: MPI.Comm,
+        motion: Sequence[Boundary] | Callable[[float], Boundary],
+        h: float,
+        *,
+        times: Sequence[float] | None = None,
+        degree: int = 2,
+        map: str = "I",
+        box: npt.ArrayLike | None = None,
+        eta: float = 0.2,
+        relaxation_factor: float = 3.0,
+        min_angle: float = 10.0,
+        size_factor: float | None = None,
+        max_rounds: int = 8,
+    ) -> MovingDomain:
+        """A moving domain on one graded background sized for a whole motion (collective).
+
+        The background's size near the swept band follows the geometry of every position
+        (as :func:`~dolfinx_universal.domain.mesh_domain` does for one); every position is
+        then conformed once, and where a check fails the background is refined there and the
+        positions conformed again (at most ``max_rounds`` times). Later :meth:`update` calls
+        check that their boundary stays in the region the background was sized for.
+
+        Parameters
+        ----------
+        comm
+            Communicator of the mesh.
+        motion
+            The boundary's positions, or a callable ``t -> Boundary`` evaluated at ``times``.
+        h
+            Largest mesh size.
+        times
+            Times at which to evaluate a callable ``motion``.
+        degree, map, eta, relaxation_factor
+            As in :class:`MovingDomain`.
+        box
+            The background's extent (default: the positions' bounding boxes plus a margin).
+        min_angle, size_factor, max_rounds
+            As in :func:`~dolfinx_universal.domain.mesh_domain`.
+
+        Raises
+        ------
+        MeshingError
+            When the positions cannot be meshed within ``max_rounds`` refinements, naming the
+            position and the place.
+        """
+        from .domain import size_from_geometry
+        from .graded import EDGE_FACTOR, graded_mesh
+
+        if callable(motion):
+            if times is None:
+                raise ValueError("a callable motion needs the times at which to evaluate it")
+            positions = [motion(float(t)) for t in times]
+        else:
+            positions = list(motion)
+        if not positions:
+            raise ValueError("the motion has no positions")
+        box_arr, field, _, _ = size_from_geometry(
+            comm, positions, h, degree=degree, box=box, relaxation_factor=relaxation_factor,
+            size_factor=size_factor,
+        )
+        rounds = 0
+        while True:
+            background = graded_mesh(
+                comm, box_arr, field, max_size=h, root_size=h / EDGE_FACTOR
+            )
+            md = cls(
+                background, degree, map, eta=eta, relaxation_factor=relaxation_factor,
+                local_size=True, min_angle=min_angle, on_low_quality="raise",
+            )
+            k = 0
+            try:
+                for k in range(len(positions)):
+                    md.update(positions[k])
+                break
+            except MeshingError as e:
+                if not e.refinable or len(e.points) == 0 or rounds >= max_rounds:
+                    raise MeshingError(
+                        f"position {k} of the motion cannot be meshed"
+                        + (f" after {rounds} refinements" if rounds else "") + f": {e}",
+                        e.points, refinable=False,
+                    ) from None
+                field = field.refined(e.points, 0.5 * field(e.points))
+                rounds += 1
+        md.universal.on_low_quality = "warn"
+        md.steps.clear()
+        md.refinement_rounds = rounds
+        md._coverage = (field, box_arr, degree, size_factor)
+        return md
 
     # -- the update -----------------------------------------------------------------------
 
@@ -131,7 +244,12 @@ class MovingDomain:
             On every rank if the domain cannot be meshed (nothing is changed then).
         """
         t0 = time.perf_counter()
-        sm = self.universal.straight_map(boundary)
+        if self._coverage is not None:
+            self._check_coverage(boundary)
+        try:
+            sm = self.universal.straight_map(boundary)
+        except MeshingError as e:
+            raise type(e)(f"step {len(self.steps)}: {e}", e.points, e.refinable) from None
         t1 = time.perf_counter()
         c2v = self._c2v
         # Cells to rewrite: those near Gamma now, and those near it at the previous step
@@ -152,8 +270,9 @@ class MovingDomain:
         bad = ratio <= 0
         raise_collective(
             self.comm,
-            [f"{int(bad.sum())} curved triangles would be inverted near "
-             f"{where(nodes[cut[bad]].mean(axis=1))}: refine the background there"]
+            [Problem(f"step {len(self.steps)}: " + "{count} curved triangles would be inverted "
+                     "near {where}: refine the background there",
+                     nodes[cut[bad]].mean(axis=1), int(bad.sum()))]
             if bad.any() else [],
         )
         # Write the nodes in place; inactive cells first, so that on Gamma_h the active
@@ -183,6 +302,29 @@ class MovingDomain:
         )
         self.steps.append(report)
         return report
+
+    def _check_coverage(self, boundary: Boundary) -> None:
+        """Raise if ``boundary`` needs a finer background than :meth:`from_motion` built."""
+        from .sizing import feature_size, target_sizes
+
+        field, box, degree, factor = self._coverage  # type: ignore[misc]
+
+        def needs() -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+            samples, feature = feature_size(boundary)
+            return samples.points, target_sizes(feature, float(field.h_max), degree, factor)
+
+        pts, target = collective_call(self.comm, "sizing the boundary", needs)
+        outside = ~((pts > box[0]).all(axis=1) & (pts < box[1]).all(axis=1))
+        coarse = target < field(pts) / COVERAGE_TOLERANCE
+        bad = outside | coarse
+        if bad.any():
+            what = "leaves the background" if outside.any() else (
+                "needs a finer background than the one sized for the motion")
+            raise MeshingError(
+                f"step {len(self.steps)}: the boundary {what} near {where(pts[bad])}: include "
+                "this position in the motion given to MovingDomain.from_motion",
+                pts[bad], refinable=False,
+            )
 
     def _quality(self, sm, near: npt.NDArray[np.bool_]) -> dict[str, float | int]:
         """Quality of the active triangles: computed near Gamma, background values elsewhere

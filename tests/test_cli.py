@@ -164,8 +164,8 @@ def test_bad_spline_file(mpi_tmp_path, capsys):
 @pytest.mark.parametrize(
     "args, fragment",
     [
-        (["--circle", "0.4", "--h", "0.5"], "inverted"),  # h too coarse for the circle
-        (["--circle", "0.1", "--h", "0.5"], "no background vertex lies inside"),
+        (["--circle", "0.4", "--h", "0.5", "--uniform"], "inverted"),  # h too coarse
+        (["--circle", "0.1", "--h", "0.5", "--uniform"], "no background vertex lies inside"),
     ],
 )
 def test_meshing_failure(mpi_tmp_path, capsys, args, fragment):
@@ -175,6 +175,37 @@ def test_meshing_failure(mpi_tmp_path, capsys, args, fragment):
         assert err.startswith("dolfinx-universal: error: ") and err.count("\n") == 1
         assert fragment in err
     assert not (mpi_tmp_path / "fail" / "summary.json").exists()
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["--circle", "0.4", "--h", "0.5"],  # the cases --uniform refuses
+        ["--circle", "0.1", "--h", "0.5"],
+        ["--polar", "1 + 0.3*cos(5*theta)", "--degree", "2"],
+        ["--polar", "1 + 0.3*cos(5*theta)", "--degree", "2", "--h", "0.05"],
+        ["--spline", "star.csv", "--degree", "2"],
+        ["--spline", "star.csv", "--degree", "4"],
+    ],
+)
+def test_graded_by_default(mpi_tmp_path, args):
+    """The shapes a new user tries mesh with the defaults; the summary has the certificate."""
+    star = mpi_tmp_path / "star.csv"
+    if comm.rank == 0:
+        t = np.linspace(0, 2 * np.pi, 10, endpoint=False)
+        r = np.where(np.arange(10) % 2 == 0, 1.0, 0.5)
+        np.savetxt(star, np.column_stack([r * np.cos(t), r * np.sin(t)]), delimiter=",")
+    comm.barrier()
+    args = [str(star) if a == "star.csv" else a for a in args]
+    out = mpi_tmp_path / "graded"
+    assert main([*args, "--out", str(out), "--no-plot", "--quiet"]) == 0
+    s = read_summary(out)
+    cert = s["certificate"]
+    assert s["background"] == "graded (mesh_domain)" and s["quality"]["n_inverted"] == 0
+    assert cert["num_loops"] == 1 and cert["num_pieces"] == 1
+    assert cert["max_conditioning_angle_deg"] < 90 and cert["min_jacobian_ratio"] > 0
+    assert cert["min_angle_deg"] >= cert["min_angle_floor_deg"] == 10
+    assert "certificate" in s["certificate_text"]
 
 
 def test_polar_derivatives():
@@ -212,7 +243,8 @@ def test_mpirun_matches_serial(tmp_path):
            "--out", str(tmp_path / "mpi")]
     proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=180)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    assert proc.stdout.count("cells") == 1  # rank 0 prints alone
+    assert proc.stdout.count("unaltered") == 1  # rank 0 prints alone
+    assert proc.stdout.count("universal mesh certificate") == 1
     serial, parallel = read_summary(tmp_path / "serial"), read_summary(tmp_path / "mpi")
     assert parallel["mpi_size"] == 2
     assert parallel["n_cells"] == serial["n_cells"]

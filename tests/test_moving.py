@@ -153,3 +153,32 @@ def test_graded_background_with_level_changes_near_gamma():
     for angle in np.radians([0.0, 13.0, 31.0, 47.0]):
         report = md.update(du.Domain(None, [du.RigidMotion(prop, angle=-angle)]))
         assert report.quality["n_inverted"] == 0 and report.min_jacobian_ratio > 0.3
+
+
+def test_from_motion_sizes_one_background_for_every_step():
+    """A body rotating and translating in a box: the background is graded along the swept
+    band from the geometry, every step of the motion is valid, and a step off the motion
+    is refused with the step and the place."""
+    body = _body()
+
+    def motion(t: float) -> du.Boundary:
+        return du.Domain(None, [du.RigidMotion(body, angle=t, translation=(0.3 * t, 0.0))])
+
+    times = np.linspace(0.0, 1.0, 9)
+    md = MovingDomain.from_motion(comm, motion, 0.15, times=times, degree=2,
+                                  box=[[-1.0, -1.0], [1.5, 1.0]])
+    assert md.steps == []
+    area = fem.form(md.active * ufl.dx)
+    ref = 2.5 * 2.0 - comm.allreduce(fem.assemble_scalar(fem.form(1.0 * ufl.dx(
+        du.mesh_domain(comm, body, 0.15, degree=2).mesh))))
+    for t in times:
+        report = md.update(motion(t))
+        assert report.quality["n_inverted"] == 0 and report.min_jacobian_ratio > 0
+        assert report.quality["theta_min_deg"] >= 10.0
+        assert comm.allreduce(fem.assemble_scalar(area)) == pytest.approx(ref, rel=1e-4)
+    with pytest.raises(du.MeshingError, match=r"step 9: the boundary leaves the background"):
+        md.update(motion(4.0))  # translated by 1.2: out of the box
+    with pytest.raises(du.MeshingError, match=r"step 9: .*finer background"):
+        md.update(du.Domain(None, [du.RigidMotion(du.Ellipse((0, 0), 0.3, 0.02), angle=1.0)]))
+    with pytest.raises(ValueError, match="needs the times"):
+        MovingDomain.from_motion(comm, motion, 0.15)

@@ -1,0 +1,446 @@
+"""Mesh a domain from its boundary alone: size the background, conform, curve, certify."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+from mpi4py import MPI
+
+import numpy as np
+import numpy.typing as npt
+from dolfinx import mesh as dmesh
+
+from .boundaries import Boundary, Domain
+from .conform import ConformingMesh, conform
+from .curved import MAPS, CurvedMesh, curved_mesh
+from .graded import EDGE_FACTOR, graded_mesh
+from .quality import quality_report
+from .sizing import SizeField, feature_size, target_sizes
+from .validation import MeshingError, where
+
+__all__ = ["Certificate", "MeshedDomain", "check_components", "mesh_domain"]
+
+Float = npt.NDArray[np.float64]
+
+GRADATION = 0.2
+"""Growth of the background's size away from the boundary (size change per unit length)."""
+
+
+@dataclass(frozen=True)
+class Certificate:
+    """What :func:`mesh_domain` verified about its mesh, and with what margin.
+
+    Every figure is global (the same on every rank).
+    """
+
+    max_conditioning_angle_deg: float
+    """Largest conditioning angle (the method needs < 90)."""
+    min_feature_over_h: float
+    """Smallest ratio of the local feature size of Gamma (distance to the medial axis:
+    curvature, necks, gaps) to the background size there."""
+    min_curvature_radius_over_h: float
+    """Smallest ratio of the radius of curvature of Gamma to the background size there."""
+    min_jacobian_ratio: float
+    """Proven lower bound of ``det J / det J_straight`` over the curved cells (Bernstein
+    coefficients with subdivision); 1 for straight meshes."""
+    min_angle_deg: float
+    """Smallest angle of the conforming (straight) triangles."""
+    max_angle_deg: float
+    """Largest angle of the conforming (straight) triangles."""
+    min_angle_floor_deg: float
+    """The quality floor that every triangle satisfies."""
+    num_loops: int
+    """Closed loops of Gamma_h: one per curve of Gamma, each following its curve."""
+    num_pieces: int
+    """Connected pieces of the mesh (as many as the domain has)."""
+    refinement_rounds: int
+    """Times the background was refined locally after a failed check."""
+    refinements: tuple[str, ...]
+    """For each round: the check that failed and where."""
+    h_max: float
+    """Largest background size asked for."""
+    h_min: float
+    """Smallest background size used near Gamma."""
+    num_cells: int
+    num_background_cells: int
+    degree: int
+    map: str
+
+    def __str__(self) -> str:
+        lines = [
+            f"universal mesh certificate: {self.num_cells} cells (degree {self.degree}"
+            + (f", map {self.map})" if self.degree > 1 else ")")
+            + f" from a graded background of {self.num_background_cells} cells, "
+            f"h in [{self.h_min:.3g}, {self.h_max:.3g}]",
+            f"  Gamma_h: {self.num_loops} closed loop(s), one per curve; "
+            f"{self.num_pieces} connected piece(s)",
+            f"  conditioning angles <= {self.max_conditioning_angle_deg:.2f} deg (< 90 needed)",
+            f"  feature size / h >= {self.min_feature_over_h:.3g}, "
+            f"radius of curvature / h >= {self.min_curvature_radius_over_h:.3g}",
+            f"  angles in [{self.min_angle_deg:.2f}, {self.max_angle_deg:.2f}] deg "
+            f"(floor {self.min_angle_floor_deg:g})",
+            f"  det J / det J_straight >= {self.min_jacobian_ratio:.4g} (proven)",
+            f"  refinement rounds: {self.refinement_rounds}",
+        ]
+        lines += [f"    {r}" for r in self.refinements]
+        return "\n".join(lines)
+
+    def as_dict(self) -> dict[str, object]:
+        """The certificate as JSON-ready data."""
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.__dict__.items()}
+
+
+@dataclass(frozen=True)
+class MeshedDomain:
+    """The result of :func:`mesh_domain`."""
+
+    mesh: dmesh.Mesh
+    """The conforming mesh: degree-``degree`` geometry (straight for degree 1)."""
+    facet_tags: dmesh.MeshTags
+    """:data:`~dolfinx_universal.conform.IMMERSED` on Gamma,
+    :data:`~dolfinx_universal.conform.OUTER` on the box boundary."""
+    certificate: Certificate
+    conforming: ConformingMesh
+    """The straight conforming mesh and its maps to the background."""
+    curved: CurvedMesh | None
+    """The curved mesh (None for degree 1)."""
+    timings: dict[str, float] = field(default_factory=dict)
+    """Seconds (max over ranks): ``sizing``, ``background``, ``conform``, ``curved``, ``total``
+    (all rounds)."""
+
+    @property
+    def background(self) -> dmesh.Mesh:
+        """The graded background mesh of the last round."""
+        return self.conforming.background
+
+
+def check_components(boundary: Boundary, n: int = 2048) -> None:
+    """Raise if the components of a :class:`~dolfinx_universal.boundaries.Domain` overlap.
+
+    Each body must lie inside the container and outside every other body; touching counts
+    as overlapping (no mesh size resolves a zero gap).
+
+    Raises
+    ------
+    MeshingError
+        Naming the components and a place where they overlap (not refinable).
+    """
+    if not isinstance(boundary, Domain):
+        return
+    comps = boundary.components
+    for i, (bi, body_i) in enumerate(comps):
+        if not body_i:
+            continue
+        pts = bi.sample(n)
+        for j, (bj, body_j) in enumerate(comps):
+            if i == j:
+                continue
+            s = bj.sign(pts)
+            bad = s < 0 if body_j else s > 0
+            if bad.any():
+                what = f"body {i}" + (f" overlaps body {j}" if body_j else " leaves the container")
+                raise MeshingError(
+                    f"{what} near {where(pts[bad])}: the bodies of a Domain must lie inside the "
+                    "container, apart from each other and from it",
+                    pts[bad], refinable=False,
+                )
+
+
+def _curvature_radius(points: Float, labels: npt.NDArray) -> Float:
+    """Radius of curvature at ordered closed sample loops (circle through three samples)."""
+    out = np.full(len(points), np.inf)
+    for k in np.unique(labels):  # one pass per closed curve
+        idx = np.flatnonzero(labels == k)
+        p = points[idx]
+        a, b = np.roll(p, 1, axis=0), np.roll(p, -1, axis=0)
+        u, v, w = p - a, b - p, b - a
+        cross = np.abs(u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
+        lengths = np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1) * np.linalg.norm(w, axis=1)
+        with np.errstate(divide="ignore"):
+            out[idx] = np.where(cross > 0, lengths / (2 * cross), np.inf)
+    return out
+
+
+def _auto_box(boundary: Boundary, h: float, relaxation_factor: float) -> Float:
+    """The boundary's bounding box plus a margin that keeps the band off the box boundary."""
+    bbox = np.asarray(boundary.bounding_box(), dtype=np.float64).reshape(2, 2)
+    margin = (relaxation_factor + 2.0) * h
+    return np.array([bbox[0] - margin, bbox[1] + margin])
+
+
+def _estimate_cells(points: Float, sizes: Float, box: Float, h: float) -> float:
+    """Rough cell count of a background graded from ``sizes`` at ``points`` up to ``h``.
+
+    A triangle of edge ``s`` covers about ``0.4 s^2``; along Gamma (spacing ``ds``) a size
+    ``s`` that grows like ``s + GRADATION r`` up to ``h`` covers a strip with
+    ``ds / (0.4 GRADATION) (1/s - 1/h)`` cells per side.
+    """
+    ds = np.full(len(points), 0.0)
+    if len(points) > 1:
+        d = np.linalg.norm(np.diff(points, axis=0), axis=1)
+        ds[:-1] = np.minimum(d, 4 * sizes[:-1])
+    near = 2 * ds / (0.4 * GRADATION) * np.maximum(1.0 / sizes - 1.0 / h, 0.0)
+    area = float(np.prod(box[1] - box[0]))
+    return float(near.sum() + area / (0.4 * h * h))
+
+
+def size_from_geometry(
+    comm: MPI.Comm,
+    boundaries: list[Boundary],
+    h: float,
+    *,
+    degree: int = 1,
+    box: npt.ArrayLike | None = None,
+    relaxation_factor: float = 3.0,
+    size_factor: float | None = None,
+) -> tuple[Float, SizeField, Float, Float]:
+    """The background box and size field for one or several positions of a boundary.
+
+    Computed on rank 0 and broadcast, so that every rank builds the same background.
+
+    Parameters
+    ----------
+    comm
+        Communicator.
+    boundaries
+        The boundary, or its positions along a motion (the field covers them all).
+    h
+        Largest size.
+    degree, box, relaxation_factor, size_factor
+        As in :func:`mesh_domain`.
+
+    Returns
+    -------
+    box
+        ``[[x0, y0], [x1, y1]]``.
+    field
+        The size field (sources: dense samples of every boundary with their target sizes).
+    feature, rho
+        Local feature size and radius of curvature at the sources ``(n,)``.
+
+    Raises
+    ------
+    MeshingError
+        Overlapping components, or a boundary leaving the given box (not refinable).
+    """
+    result: object = None
+    if comm.rank == 0:
+        try:
+            result = _sizing(boundaries, h, degree, box, relaxation_factor, size_factor)
+        except (MeshingError, ValueError) as e:
+            result = e
+        except Exception as e:  # a user callback failing: the same error on every rank
+            result = MeshingError(
+                f"sizing the boundary failed: {type(e).__name__}: {e}", refinable=False
+            )
+    result = comm.bcast(result, root=0)
+    if isinstance(result, Exception):
+        raise result
+    return result  # type: ignore[return-value]
+
+
+def _sizing(
+    boundaries: list[Boundary],
+    h: float,
+    degree: int,
+    box: npt.ArrayLike | None,
+    relaxation_factor: float,
+    size_factor: float | None,
+) -> tuple[Float, SizeField, Float, Float]:
+    """:func:`size_from_geometry` on one rank."""
+    pts, feats, targets, rhos, boxes = [], [], [], [], []
+    for b in boundaries:
+        check_components(b)
+        samples, feature = feature_size(b)
+        pts.append(samples.points)
+        feats.append(feature)
+        targets.append(target_sizes(feature, h, degree, size_factor))
+        rhos.append(_curvature_radius(samples.points, samples.labels))
+        boxes.append(_auto_box(b, h, relaxation_factor))
+    points, feature = np.concatenate(pts), np.concatenate(feats)
+    target, rho = np.concatenate(targets), np.concatenate(rhos)
+    if box is None:
+        stack = np.array(boxes)
+        box_arr = np.array([stack[:, 0].min(axis=0), stack[:, 1].max(axis=0)])
+    else:
+        box_arr = np.asarray(box, dtype=np.float64).reshape(2, 2)
+        out = ~((points > box_arr[0]).all(axis=1) & (points < box_arr[1]).all(axis=1))
+        if out.any():
+            raise MeshingError(
+                f"the domain's boundary leaves the given box {box_arr.tolist()} near "
+                f"{where(points[out])}: enlarge the box", points[out], refinable=False,
+            )
+        # The band of width R_r must stay off the box boundary: size by the distance to it.
+        gap = np.minimum(points - box_arr[0], box_arr[1] - points).min(axis=1)
+        target = np.minimum(target, gap / (relaxation_factor + 1.5))
+    return box_arr, SizeField(points, target, h, GRADATION), feature, rho
+
+
+def mesh_domain(
+    comm: MPI.Comm,
+    boundary: Boundary,
+    h: float,
+    *,
+    degree: int = 1,
+    map: str = "I",
+    box: npt.ArrayLike | None = None,
+    eta: float = 0.2,
+    relaxation_factor: float = 3.0,
+    min_angle: float = 10.0,
+    size_factor: float | None = None,
+    max_rounds: int = 8,
+    max_cells: float = 5e6,
+) -> MeshedDomain:
+    """Mesh the domain bounded by ``boundary``: the one call a user makes (collective).
+
+    The background is a graded acute quadtree mesh (:func:`~dolfinx_universal.graded.graded_mesh`)
+    whose size near Gamma follows the geometry: the local feature size (distance to the
+    medial axis, which accounts for curvature, thin parts, necks and gaps between parts of
+    the boundary) divided by a factor that grows with the geometry degree
+    (:func:`~dolfinx_universal.sizing.target_sizes`). Away from Gamma the size grows by
+    :data:`GRADATION` per unit length up to ``h``. The background is then conformed (SPEC
+    §2-3 with ``local_size``), curved (SPEC §4) and checked: conditioning angles, inverted
+    straight or curved cells (a proof with Bernstein coefficients), one Gamma_h loop per
+    curve of Gamma on the domain's side, the quality floor ``min_angle``. Where a check
+    fails the background is refined locally (the size halved around the places named by the
+    check) and the domain meshed again, at most ``max_rounds`` times. The same mesh comes out
+    on any number of ranks.
+
+    Parameters
+    ----------
+    comm
+        Communicator of the mesh.
+    boundary
+        The domain's boundary.
+    h
+        Largest mesh size (far from Gamma).
+    degree
+        Geometry degree ``q >= 1`` (1: straight conforming mesh).
+    map
+        Curved map, one of :data:`~dolfinx_universal.curved.MAPS`.
+    box
+        ``[[x0, y0], [x1, y1]]``: the background's extent, whose boundary is the outer
+        boundary of the mesh where the domain reaches it (e.g. a channel with
+        ``Domain(None, bodies)``). Default: the boundary's bounding box plus ``(R_r/h + 2) h``.
+    eta, relaxation_factor
+        See :class:`~dolfinx_universal.conform.UniversalMesh` (``R_r = relaxation_factor``
+        times the local size).
+    min_angle
+        Quality floor (degrees) for the straight conforming triangles.
+    size_factor
+        Feature size / target size near Gamma (default by degree, see
+        :func:`~dolfinx_universal.sizing.target_sizes`).
+    max_rounds
+        Largest number of local refinements.
+    max_cells
+        Largest background the geometry may ask for.
+
+    Returns
+    -------
+    The mesh, its facet tags and a :class:`Certificate`.
+
+    Raises
+    ------
+    MeshingError
+        Only for inputs that no mesh size can mesh: components that overlap or touch, a
+        domain that leaves the given box, a geometry needing more than ``max_cells`` cells,
+        or checks that still fail after ``max_rounds`` refinements (with the places).
+    ValueError
+        Bad parameters.
+    """
+    t_start = time.perf_counter()
+    h = float(h)
+    if not (h > 0 and math.isfinite(h)):
+        raise ValueError(f"h must be positive and finite, got {h}")
+    if int(degree) != degree or degree < 1:
+        raise ValueError(f"geometry degree must be an integer >= 1, got {degree}")
+    if map not in MAPS:
+        raise ValueError(f"unknown map {map!r}: choose one of {MAPS}")
+    if int(max_rounds) != max_rounds or max_rounds < 0:
+        raise ValueError(f"max_rounds must be a non-negative integer, got {max_rounds}")
+    degree = int(degree)
+    timings = {"sizing": 0.0, "background": 0.0, "conform": 0.0, "curved": 0.0}
+
+    t = time.perf_counter()
+    box_arr, field_, feature, rho = size_from_geometry(
+        comm, [boundary], h, degree=degree, box=box, relaxation_factor=relaxation_factor,
+        size_factor=size_factor,
+    )
+    points = field_.points
+    timings["sizing"] += time.perf_counter() - t
+
+    rounds: list[str] = []
+    while True:
+        current = field_(points)
+        estimate = _estimate_cells(points, current, box_arr, h)
+        if estimate > max_cells:
+            i = int(np.argmin(current))
+            raise MeshingError(
+                f"the geometry asks for about {estimate:.3g} background cells (more than "
+                f"max_cells = {max_cells:.3g}): the smallest size needed is "
+                f"{current[i]:.3g} near {where(points[i:i + 1])}"
+                + (f" after {len(rounds)} refinement rounds ({'; '.join(rounds)})" if rounds
+                   else "")
+                + "; raise max_cells or simplify the geometry there",
+                points[i:i + 1], refinable=False,
+            )
+        t = time.perf_counter()
+        background = graded_mesh(comm, box_arr, field_, max_size=h, root_size=h / EDGE_FACTOR)
+        timings["background"] += time.perf_counter() - t
+        try:
+            t = time.perf_counter()
+            cm = conform(
+                background, boundary, eta=eta, relaxation_factor=relaxation_factor,
+                local_size=True, min_angle=min_angle, on_low_quality="raise",
+            )
+            timings["conform"] += time.perf_counter() - t
+            t = time.perf_counter()
+            curved = curved_mesh(cm, degree, map) if degree > 1 else None
+            timings["curved"] += time.perf_counter() - t
+            break
+        except MeshingError as e:
+            if not e.refinable or len(e.points) == 0:
+                raise
+            first = str(e).splitlines()[0]
+            if len(rounds) >= max_rounds:
+                raise MeshingError(
+                    f"still failing after {max_rounds} local refinements ("
+                    + "; ".join(rounds) + f"): {e}", e.points, refinable=False,
+                ) from None
+            rounds.append(f"round {len(rounds) + 1}: {_short(first)}")
+            field_ = field_.refined(e.points, 0.5 * field_(e.points))
+
+    jac = curved.min_jacobian_ratio if curved is not None else 1.0
+    quality = quality_report(cm)
+    hvals = field_(points)
+    size_used = comm.allreduce(float(hvals.min()), op=MPI.MIN)
+    msh = curved.mesh if curved is not None else cm.mesh
+    tags = curved.facet_tags if curved is not None else cm.facet_tags
+    certificate = Certificate(
+        max_conditioning_angle_deg=cm.max_conditioning_angle,
+        min_feature_over_h=float(np.min(feature / hvals)),
+        min_curvature_radius_over_h=float(np.min(rho / hvals)),
+        min_jacobian_ratio=float(jac),
+        min_angle_deg=float(quality["theta_min_deg"]),
+        max_angle_deg=float(quality["theta_max_deg"]),
+        min_angle_floor_deg=float(min_angle),
+        num_loops=cm.num_loops,
+        num_pieces=cm.num_pieces,
+        refinement_rounds=len(rounds),
+        refinements=tuple(rounds),
+        h_max=h,
+        h_min=size_used,
+        num_cells=msh.topology.index_map(2).size_global,
+        num_background_cells=background.topology.index_map(2).size_global,
+        degree=degree,
+        map=map,
+    )
+    timings["total"] = time.perf_counter() - t_start
+    timings = {k: comm.allreduce(v, op=MPI.MAX) for k, v in timings.items()}
+    return MeshedDomain(msh, tags, certificate, cm, curved, timings)
+
+
+def _short(text: str, n: int = 160) -> str:
+    return text if len(text) <= n else text[: n - 3] + "..."

@@ -1,0 +1,218 @@
+"""mesh_domain: sizing from the geometry, refinement, certificate; no silent wrong mesh."""
+
+from __future__ import annotations
+
+import warnings
+
+from mpi4py import MPI
+
+import numpy as np
+import pytest
+import ufl
+from conftest import run_mpi_json
+from dolfinx import fem
+
+import dolfinx_universal as du
+from dolfinx_universal.background import equilateral_triangulation
+
+comm = MPI.COMM_WORLD
+
+
+def area(msh) -> float:
+    return comm.allreduce(fem.assemble_scalar(fem.form(1.0 * ufl.dx(msh))))
+
+
+def row_gap_centre(box, h) -> float:
+    """A y halfway between two vertex rows of the equilateral background, near 0."""
+    x, _ = equilateral_triangulation(box, h)
+    rows = np.unique(np.round(x[:, 1], 12))
+    k = np.searchsorted(rows, 0.0)
+    return 0.5 * (rows[k - 1] + rows[k])
+
+
+def long_neck(width: float, yc: float = 0.0, L: float = 1.2, beta: float = 2.0):
+    """Omega = {(y - yc)^2 < g(x)}, g = (L^2 - x^2)(a + beta x^4): two lobes joined by a neck of
+    width ``width`` at x = 0 that stays thin over about 0.3 (an implicit curve), and its area."""
+    a = width**2 / (4 * L**2)
+
+    def g(x):
+        return (L**2 - x**2) * (a + beta * x**4)
+
+    def dg(x):
+        return -2 * x * (a + beta * x**4) + (L**2 - x**2) * 4 * beta * x**3
+
+    curve = du.ImplicitCurve(
+        lambda p: (p[:, 1] - yc) ** 2 - g(p[:, 0]),
+        lambda p: np.column_stack([-dg(p[:, 0]), 2 * (p[:, 1] - yc)]),
+        bbox=[[-L - 0.05, yc - 1.0], [L + 0.05, yc + 1.0]],
+        resolution=1024,
+    )
+    t = (np.arange(20000) + 0.5) * (np.pi / 20000) - np.pi / 2  # x = L sin t
+    exact = float(np.sum(2 * np.sqrt(g(L * np.sin(t))) * L * np.cos(t)) * (np.pi / 20000))
+    return curve, exact
+
+
+def polar_area(curve: du.PolarCurve, n: int = 4096) -> float:
+    """1/2 oint r^2 dtheta by the trapezoidal rule (exact for trigonometric polynomials)."""
+    t = np.arange(n) * (2 * np.pi / n)
+    return 0.5 * float(np.mean(curve.r(t) ** 2)) * 2 * np.pi
+
+
+H = 0.1
+BOX = [[-1.8, -1.8], [1.8, 1.8]]
+
+
+def thin_body_domain() -> tuple[du.Domain, float]:
+    yc = row_gap_centre(BOX, H)
+    body = du.Ellipse((0.013, yc), 3 * H, 0.27 * H)  # minor axis 0.54 h, between two rows
+    return du.Domain(du.Circle((0.0, 0.0), 1.5), [body]), np.pi * (1.5**2 - 0.3 * 0.027)
+
+
+def test_conform_refuses_a_body_between_lattice_rows():
+    domain, _ = thin_body_domain()
+    bg = du.equilateral_mesh(comm, BOX, H)
+    with pytest.raises(du.MeshingError, match="curve 1 of the boundary.*is lost") as info:
+        du.conform(bg, domain)
+    pts = info.value.points
+    assert len(pts) and np.abs(pts[:, 1]).max() < 0.1  # it names the body
+    # A body alone (the background clips the plane) that falls between lattice points.
+    lone = du.Domain(None, [domain.bodies[0]])
+    with pytest.raises(du.MeshingError, match="lost|no positive edge"):
+        du.conform(bg, lone)
+
+
+def test_conform_refuses_a_split_neck():
+    bg = du.equilateral_mesh(comm, BOX, H)
+    curve, _ = long_neck(0.3 * H, row_gap_centre(BOX, H))  # between two vertex rows
+    with pytest.raises(du.MeshingError, match="split into 2 loops"):
+        du.conform(bg, curve)
+
+
+@pytest.mark.parametrize("degree", [1, 2])
+def test_mesh_domain_meshes_the_thin_body(degree):
+    domain, exact = thin_body_domain()
+    md = du.mesh_domain(comm, domain, 0.2, degree=degree)
+    cert = md.certificate
+    assert cert.num_loops == 2 and cert.num_pieces == 1
+    # Straight: the inscribed polygons miss O(h^2) per unit length; curved: far less.
+    tol = 2e-3 if degree == 1 else 1e-5
+    assert abs(area(md.mesh) - exact) < tol * exact
+    assert cert.min_angle_deg >= cert.min_angle_floor_deg
+    assert cert.max_conditioning_angle_deg < 90
+    text = str(cert)
+    assert "2 closed loop(s)" in text and "proven" in text
+
+
+def test_mesh_domain_meshes_the_neck():
+    curve, exact = long_neck(0.3 * H)
+    md = du.mesh_domain(comm, curve, 0.2, degree=2)
+    assert md.certificate.num_loops == 1 and md.certificate.num_pieces == 1
+    assert abs(area(md.mesh) - exact) < 1e-4 * exact
+    # The background was graded: far finer at the neck than the largest size.
+    assert md.certificate.h_min < 0.02 < 0.2 == md.certificate.h_max
+
+
+def test_low_quality_warns_in_conform_and_is_refined_by_mesh_domain():
+    # A five-lobed polar curve on a coarse equilateral background: rho / h well below 2.
+    r = du.PolarCurve(
+        lambda t: 1 + 0.3 * np.cos(5 * t),
+        lambda t: -1.5 * np.sin(5 * t),
+        lambda t: -7.5 * np.cos(5 * t),
+    )
+    bg = du.equilateral_mesh(comm, [[-1.6, -1.6], [1.6, 1.6]], 0.08)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        cm = du.conform(bg, r, min_angle=25.0)
+    assert cm.moved_angle_range[0] < 25.0
+    assert any("below the quality floor of 25 degrees near (" in str(w.message) for w in caught)
+    with pytest.raises(du.MeshingError, match="quality floor"):
+        du.conform(bg, r, min_angle=25.0, on_low_quality="raise")
+    # A floor above the natural 10-14 degrees of these meshes is reached by refining.
+    md = du.mesh_domain(comm, r, 0.3, degree=2, min_angle=14.0)
+    assert md.certificate.min_angle_deg >= 14.0
+    assert abs(area(md.mesh) - polar_area(r)) < 1e-4
+
+
+def test_refinement_rounds_repair_an_undersized_background():
+    """With the target size equal to the feature size (a third of the default) the first
+    background fails the checks; local refinement repairs it in a few rounds."""
+    r = du.PolarCurve(
+        lambda t: 1 + 0.3 * np.cos(5 * t),
+        lambda t: -1.5 * np.sin(5 * t),
+        lambda t: -7.5 * np.cos(5 * t),
+    )
+    md = du.mesh_domain(comm, r, 0.3, degree=3, size_factor=0.7)
+    cert = md.certificate
+    assert 1 <= cert.refinement_rounds <= 8 and len(cert.refinements) == cert.refinement_rounds
+    assert abs(area(md.mesh) - polar_area(r)) < 1e-5
+    assert cert.min_jacobian_ratio > 0
+    with pytest.raises(du.MeshingError, match="still failing after 0 local refinements"):
+        du.mesh_domain(comm, r, 0.3, degree=3, size_factor=0.7, max_rounds=0)
+
+
+def test_errors_no_size_can_fix():
+    with pytest.raises(du.MeshingError, match="overlaps body"):
+        du.mesh_domain(
+            comm, du.Domain(du.Circle((0, 0), 2), [du.Circle((0, 0), 0.5),
+                                                   du.Circle((0.6, 0), 0.3)]), 0.2
+        )
+    with pytest.raises(du.MeshingError, match="leaves the container"):
+        du.mesh_domain(comm, du.Domain(du.Circle((0, 0), 1), [du.Circle((0.9, 0), 0.3)]), 0.2)
+    with pytest.raises(du.MeshingError, match="leaves the given box"):
+        du.mesh_domain(comm, du.Circle((0, 0), 1), 0.2, box=[[-0.5, -2], [2, 2]])
+    with pytest.raises(ValueError, match="h must be positive"):
+        du.mesh_domain(comm, du.Circle((0, 0), 1), float("nan"))
+
+
+def test_given_box_channel():
+    """A channel (the box) minus a cylinder: the box boundary is the outer boundary."""
+    md = du.mesh_domain(
+        comm, du.Domain(None, [du.Circle((0.2, 0.2), 0.05)]), 0.05, degree=2,
+        box=[[0.0, 0.0], [2.2, 0.41]],
+    )
+    exact = 2.2 * 0.41 - np.pi * 0.05**2
+    assert abs(area(md.mesh) - exact) < 1e-7
+    assert md.certificate.num_loops == 1
+
+
+def test_parameter_errors():
+    bg = du.equilateral_mesh(comm, [[-1, -1], [1, 1]], 0.2)
+    for eta in (-0.1, 1.0, float("nan")):
+        with pytest.raises(ValueError, match="eta must lie in"):
+            du.conform(bg, du.Circle((0, 0), 0.5), eta=eta)
+    from dolfinx import mesh as dmesh
+
+    line = dmesh.create_unit_interval(comm, 4)
+    with pytest.raises(ValueError, match="planar triangle meshes"):
+        du.conform(line, du.Circle((0, 0), 0.5))
+    cube = dmesh.create_unit_cube(comm, 1, 1, 1)
+    with pytest.raises(ValueError, match="planar triangle meshes"):
+        du.conform(cube, du.Circle((0, 0), 0.5))
+    # A triangle mesh in 3D (a tilted square).
+    import basix.ufl
+
+    x = np.array([[-1, -1, 0], [1, -1, 0.5], [1, 1, 0.5], [-1, 1, 0]], dtype=np.float64)
+    cells = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64)
+    if comm.rank:
+        x, cells = x[:0], cells[:0]
+    surf = dmesh.create_mesh(comm, cells, basix.ufl.element("Lagrange", "triangle", 1,
+                                                            shape=(3,)), x)
+    with pytest.raises(ValueError, match="triangle mesh in 3D"):
+        du.conform(surf, du.Circle((0, 0), 0.5))
+
+
+def test_same_mesh_on_1_2_3_ranks(tmp_path):
+    results = [run_mpi_json(n, "mesh_domain_spline.py", tmp_path / f"{n}.json") for n in (1, 2, 3)]
+    for r in results[1:]:
+        assert r["n_cells"] == results[0]["n_cells"]
+        assert r["rounds"] == results[0]["rounds"]
+        assert abs(r["area"] - results[0]["area"]) < 1e-12
+        assert np.allclose(r["centroids"], results[0]["centroids"], atol=1e-12)
+
+
+def test_collective_errors_never_hang(tmp_path):
+    out = run_mpi_json(3, "collective_errors.py", tmp_path / "e.json")
+    assert out["messages"][0] == out["messages"][1] == out["messages"][2]
+    assert "KeyError" in out["messages"][0]
+    # Per-rank reports of one kind merge into one message with the global count.
+    assert out["count_messages"] == ["6 cells are bad near (0, 0), (1, 0), (2, 0)"] * 3
