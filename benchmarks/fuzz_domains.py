@@ -1,0 +1,304 @@
+"""Fuzz ``mesh_domain`` with seeded random smooth domains and check every mesh independently.
+
+Each seed gives a random domain (``tests/random_domains.py``: splines, polar curves,
+ellipses, containers with bodies, thin necks) and a coarse largest size ``h``; the domain
+is meshed with ``dolfinx_universal.mesh_domain(comm, boundary, h, degree=q)`` and the mesh
+is checked by ``tests/mesh_checks.py`` (det J on a fine lattice, nodes on Gamma, area,
+loops and pieces). Outcomes: ``ok``, ``meshing_error`` (``MeshingError``), ``wrong_mesh``
+(a check failed), ``exception`` (anything else).
+
+Without ``mesh_domain`` (older package), each domain is conformed instead on a uniform
+equilateral background fine enough for its smallest feature (outcome ``skipped`` above
+``--max-cells`` background cells): a baseline of the checks, not of the mesher.
+
+    python benchmarks/fuzz_domains.py --quick --out out/fuzz
+    python benchmarks/fuzz_domains.py --n 2000 --degrees 1,2,3,4 --out out/fuzz
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+import traceback
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+from mpi4py import MPI
+
+import numpy as np
+
+import dolfinx_universal as du
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from mesh_checks import check_mesh  # noqa: E402
+from random_domains import KINDS, random_domain  # noqa: E402
+
+OUTCOMES = ("ok", "meshing_error", "wrong_mesh", "exception", "skipped")
+
+
+def _cert(result: Any, name: str) -> Any:
+    """A certificate field, or None."""
+    value = getattr(getattr(result, "certificate", None), name, None)
+    return value if isinstance(value, (int, float, str, type(None))) else str(value)
+
+
+def _baseline(comm: MPI.Comm, d: Any, degree: int, max_cells: float) -> Any:
+    """Conform on a uniform background fine enough for the domain (no ``mesh_domain``)."""
+    hb = d.uniform_size()
+    box = d.box(4 * hb + 0.05 * d.extent)
+    cells = 2.4 * np.prod(box[1] - box[0]) / hb**2
+    if cells > max_cells:
+        return None
+    cm = du.conform(du.equilateral_mesh(comm, box, hb), d.boundary)
+    return du.curved_mesh(cm, degree)
+
+
+def _reference_time(comm: MPI.Comm, result: Any, boundary: du.Boundary, degree: int) -> Any:
+    """Seconds of one ``conform`` + ``curved_mesh`` on the final background, if exposed."""
+    bg = getattr(result, "background", None)
+    if bg is None:
+        bg = getattr(getattr(result, "certificate", None), "background", None)
+    if bg is None:
+        return None
+    try:
+        comm.Barrier()
+        t0 = time.perf_counter()
+        cm = du.conform(bg, boundary, local_size=True)
+        du.curved_mesh(cm, degree)
+        return time.perf_counter() - t0
+    except Exception:  # noqa: BLE001 - the reference is optional
+        return None
+
+
+def run_one(comm: MPI.Comm, seed: int, degree: int, max_cells: float, ref: bool) -> dict:
+    """Mesh and check one random domain; a JSON-serialisable record."""
+    d = random_domain(seed)
+    rec: dict[str, Any] = {
+        "seed": seed,
+        "kind": d.kind,
+        "degree": degree,
+        "h": d.h,
+        "h_over_feature": d.h / d.min_feature,
+        "description": d.description,
+    }
+    have = hasattr(du, "mesh_domain")
+    comm.Barrier()
+    t0 = time.perf_counter()
+    try:
+        if have:
+            result = du.mesh_domain(comm, d.boundary, d.h, degree=degree)
+        else:
+            result = _baseline(comm, d, degree, max_cells)
+    except du.MeshingError as e:
+        rec.update(outcome="meshing_error", message=str(e).splitlines()[0][:300])
+        rec["time"] = time.perf_counter() - t0
+        return rec
+    except Exception as e:  # noqa: BLE001 - every failure is recorded
+        rec.update(
+            outcome="exception",
+            message=f"{type(e).__name__}: {e}"[:300],
+            traceback=traceback.format_exc()[-2000:],
+        )
+        rec["time"] = time.perf_counter() - t0
+        return rec
+    rec["time"] = time.perf_counter() - t0
+    if result is None:
+        rec.update(outcome="skipped", message="background too large for the baseline")
+        return rec
+    label = f"seed={seed} kind={d.kind} degree={degree}"
+    t1 = time.perf_counter()
+    try:
+        r = check_mesh(
+            result.mesh,
+            result.facet_tags,
+            d.boundary,
+            d.exact_area,
+            n_curves=d.n_curves,
+            n_pieces=d.n_pieces,
+            outer=False,
+            label=label,
+        )
+    except Exception as e:  # noqa: BLE001
+        rec.update(
+            outcome="exception",
+            message=f"check_mesh: {type(e).__name__}: {e}"[:300],
+            traceback=traceback.format_exc()[-2000:],
+        )
+        return rec
+    rec["check_time"] = time.perf_counter() - t1
+    rec["outcome"] = "wrong_mesh" if r["failures"] else "ok"
+    if r["failures"]:
+        rec["message"] = " | ".join(r["failures"])[:600]
+    for k in (
+        "num_cells",
+        "min_detJ_ratio",
+        "min_angle_deg",
+        "max_angle_deg",
+        "area_rel_error",
+        "area_constant",
+        "boundary_deviation",
+        "h_near",
+    ):
+        rec[k] = r[k]
+    for k in (
+        "min_angle_deg",
+        "max_angle_deg",
+        "min_jacobian_ratio",
+        "refinement_rounds",
+        "h_min",
+        "num_background_cells",
+    ):
+        rec[f"cert_{k}"] = _cert(result, k)
+    if ref and have:
+        tr = _reference_time(comm, result, d.boundary, degree)
+        rec["reference_time"] = tr
+        rec["time_ratio"] = rec["time"] / tr if tr else None
+    return rec
+
+
+def _pct(values: list[float], q: list[float]) -> list[float] | None:
+    v = [x for x in values if x is not None and np.isfinite(x)]
+    return np.percentile(v, q).round(6).tolist() if v else None
+
+
+def summarise(records: list[dict], wall: float) -> dict:
+    """Counts, rates, times and quality percentiles of the records."""
+    n = len(records)
+    counts = Counter(r["outcome"] for r in records)
+    by = {
+        f"{k}/q{q}": Counter(r["outcome"] for r in records if r["kind"] == k and r["degree"] == q)
+        for k in KINDS
+        for q in sorted({r["degree"] for r in records})
+    }
+    times = [r["time"] for r in records if r["outcome"] in ("ok", "wrong_mesh")]
+    rounds = Counter(r.get("cert_refinement_rounds") for r in records if r["outcome"] == "ok")
+    return {
+        "n": n,
+        "mesher": "mesh_domain" if hasattr(du, "mesh_domain") else "uniform baseline",
+        "wall_s": wall,
+        "counts": {k: counts.get(k, 0) for k in OUTCOMES},
+        "success_rate": counts.get("ok", 0) / n if n else 0.0,
+        "by_kind_degree": {k: dict(v) for k, v in by.items() if v},
+        "time_s": {
+            "median": float(np.median(times)) if times else None,
+            "max": float(np.max(times)) if times else None,
+        },
+        "check_time_s_median": float(
+            np.median([r["check_time"] for r in records if "check_time" in r] or [np.nan])
+        ),
+        "min_angle_percentiles_0_1_5_50": _pct(
+            [r.get("cert_min_angle_deg") for r in records if r["outcome"] == "ok"], [0, 1, 5, 50]
+        ),
+        "measured_min_angle_percentiles_0_1_5_50": _pct(
+            [r.get("min_angle_deg") for r in records if r["outcome"] == "ok"], [0, 1, 5, 50]
+        ),
+        "min_detJ_ratio_percentiles_0_1_5_50": _pct(
+            [r.get("min_detJ_ratio") for r in records if r["outcome"] == "ok"], [0, 1, 5, 50]
+        ),
+        "refinement_rounds": {str(k): v for k, v in sorted(rounds.items(), key=str)},
+        "time_ratio_to_conform": _pct([r.get("time_ratio") for r in records], [50, 100]),
+        "failures": [
+            {k: r.get(k) for k in ("seed", "kind", "degree", "outcome", "message", "description")}
+            for r in records
+            if r["outcome"] not in ("ok", "skipped")
+        ],
+    }
+
+
+def print_table(s: dict) -> None:
+    """The summary as text."""
+    print(f"\n{s['n']} random domains through {s['mesher']} in {s['wall_s']:.1f} s")
+    print("| outcome | count |\n|---|---|")
+    for k, v in s["counts"].items():
+        print(f"| {k} | {v} |")
+    print(f"success rate: {100 * s['success_rate']:.2f} %")
+    t = s["time_s"]
+    if t["median"] is not None:
+        print(
+            f"time per domain: median {t['median']:.3f} s, max {t['max']:.3f} s "
+            f"(checks: median {s['check_time_s_median']:.3f} s)"
+        )
+    print(f"certificate min angle p0/p1/p5/p50: {s['min_angle_percentiles_0_1_5_50']}")
+    print(f"measured min angle p0/p1/p5/p50: {s['measured_min_angle_percentiles_0_1_5_50']}")
+    print(f"min det J ratio p0/p1/p5/p50: {s['min_detJ_ratio_percentiles_0_1_5_50']}")
+    print(f"refinement rounds: {s['refinement_rounds']}")
+    print(
+        f"mesh_domain / (conform + curved_mesh on final background) p50/max: "
+        f"{s['time_ratio_to_conform']}"
+    )
+    print("\n| kind/degree | outcomes |\n|---|---|")
+    for k, v in s["by_kind_degree"].items():
+        print(f"| {k} | {', '.join(f'{o}: {c}' for o, c in sorted(v.items()))} |")
+    for f in s["failures"][:20]:
+        print(
+            f"- seed={f['seed']} kind={f['kind']} degree={f['degree']}: {f['outcome']}: "
+            f"{f['message']}"
+        )
+
+
+def main(argv: list[str] | None = None) -> dict:
+    """Command line entry point; returns the summary."""
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--n", type=int, default=2000, help="number of random domains")
+    p.add_argument("--seed0", type=int, default=0, help="first seed")
+    p.add_argument(
+        "--degrees",
+        default="1,2,3,4",
+        help="geometry degrees, cycled over the seeds (comma-separated)",
+    )
+    p.add_argument("--quick", action="store_true", help="50 domains")
+    p.add_argument(
+        "--kinds", default=",".join(KINDS), help="kinds to run (comma-separated; others skipped)"
+    )
+    p.add_argument("--out", type=Path, default=None, help="directory for summary.json")
+    p.add_argument(
+        "--max-cells",
+        type=float,
+        default=2e5,
+        help="largest background of the uniform baseline (without mesh_domain)",
+    )
+    p.add_argument(
+        "--no-reference",
+        action="store_true",
+        help="skip timing conform + curved_mesh on the final background",
+    )
+    args = p.parse_args(argv)
+    comm = MPI.COMM_WORLD
+    n = 50 if args.quick else args.n
+    degrees = [int(q) for q in args.degrees.split(",")]
+    kinds = args.kinds.split(",")
+    records = []
+    t0 = time.perf_counter()
+    try:
+        for i in range(n):
+            seed = args.seed0 + i
+            if KINDS[seed % len(KINDS)] not in kinds:
+                continue
+            rec = run_one(
+                comm, seed, degrees[i % len(degrees)], args.max_cells, not args.no_reference
+            )
+            records.append(rec)
+            if comm.rank == 0 and rec["outcome"] not in ("ok", "skipped"):
+                print(
+                    f"seed={seed} kind={rec['kind']} degree={rec['degree']}: "
+                    f"{rec['outcome']}: {rec.get('message', '')[:200]}",
+                    flush=True,
+                )
+            if comm.rank == 0 and (i + 1) % 100 == 0:
+                print(f"{i + 1}/{n} done, {time.perf_counter() - t0:.0f} s", flush=True)
+    finally:
+        summary = summarise(records, time.perf_counter() - t0)
+        if comm.rank == 0:
+            print_table(summary)
+            if args.out is not None:
+                args.out.mkdir(parents=True, exist_ok=True)
+                summary["records"] = records
+                (args.out / "summary.json").write_text(json.dumps(summary, indent=1))
+    return summary
+
+
+if __name__ == "__main__":
+    main()
