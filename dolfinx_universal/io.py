@@ -1,0 +1,333 @@
+"""Checkpoints of curved meshes of any degree: VTKHDF, facet-tag sidecar; adios4dolfinx optional."""
+
+# write_mesh / read_mesh store a triangle mesh with a degree-k Lagrange coordinate element in
+# DOLFINx's own VTKHDF format (dolfinx.io.vtkhdf; ParaView reads it). VTKHDF Lagrange cells
+# have equispaced nodes, but DOLFINx 0.11 writes the nodes of the mesh's own variant and reads
+# degree >= 3 back as equispaced: a GLL-warped degree-4 disc written as is comes back with an
+# area error of 5e-5 instead of 1e-10. Hence write_mesh writes a copy whose nodes are the same
+# map evaluated at equispaced points, and read_mesh evaluates the read map at GLL-warped points
+# again. VTKHDF has no mesh tags in DOLFINx 0.11: facet tags go to a sidecar (tags_path), keyed
+# by the file node indices of each facet's two vertices, matched on any number of ranks.
+# write_fields writes functions for ParaView with VTXWriter (write-only). Function checkpoints
+# that can be read back need adios4dolfinx, an optional path where an MPI-enabled adios2
+# exists (PyPI's adios2 is serial and adios4dolfinx refuses it); this package does not use it.
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import TypeVar
+
+from mpi4py import MPI
+
+import basix
+import basix.ufl
+import numpy as np
+import numpy.typing as npt
+from dolfinx import fem
+from dolfinx import mesh as dmesh
+from dolfinx.io import VTXWriter, vtkhdf
+
+from .background import ghosted_partitioner
+
+__all__ = ["read_mesh", "tags_path", "write_fields", "write_mesh"]
+
+T = TypeVar("T")
+
+_FORMAT_VERSION = 1
+
+
+def tags_path(filename: str | Path) -> Path:
+    """The facet-tag sidecar of a mesh file: ``disc.vtkhdf`` -> ``disc.tags.npz``.
+
+    Parameters
+    ----------
+    filename
+        The VTKHDF mesh file.
+
+    Returns
+    -------
+    The sidecar's path (next to the mesh file).
+    """
+    return Path(filename).with_suffix(".tags.npz")
+
+
+def _on_root(comm: MPI.Comm, action: Callable[[], T]) -> T:
+    """Run ``action`` on rank 0 and broadcast its result; its error is raised on every rank."""
+    result, error = None, None
+    if comm.rank == 0:
+        try:
+            result = action()
+        except Exception as exc:  # noqa: BLE001 - re-raised on every rank below
+            error = f"{type(exc).__name__}: {exc}"
+    result, error = comm.bcast((result, error), root=0)
+    if error is not None:
+        raise OSError(error)
+    return result
+
+
+def _check_triangles(msh: dmesh.Mesh, what: str) -> None:
+    if msh.topology.cell_type != dmesh.CellType.triangle or len(msh.geometry.cmaps) != 1:
+        raise ValueError(f"{what}: only triangle meshes with one coordinate element are supported")
+
+
+def _variant(msh: dmesh.Mesh) -> basix.LagrangeVariant:
+    return basix.LagrangeVariant(msh.geometry.cmaps[0].variant)
+
+
+def _facet_vertex_nodes(msh: dmesh.Mesh, facets: npt.NDArray[np.int32]) -> npt.NDArray[np.int32]:
+    """Process-local geometry nodes of the two vertices of each facet, ``(n, 2)``."""
+    top = msh.topology
+    top.create_connectivity(1, 0)
+    top.create_connectivity(0, top.dim)
+    f2v = top.connectivity(1, 0).array.reshape(-1, 2)[facets]
+    nodes = dmesh.entities_to_geometry(msh, 0, f2v.ravel().astype(np.int32))
+    return nodes.reshape(-1, 2)
+
+
+def _keys(pairs: npt.NDArray[np.int64], n: int) -> npt.NDArray[np.int64]:
+    """Orientation-free integer keys of node pairs ``(m, 2)`` with indices below ``n``."""
+    p = np.sort(np.asarray(pairs, dtype=np.int64).reshape(-1, 2), axis=1)
+    return p[:, 0] * np.int64(n) + p[:, 1]
+
+
+def write_mesh(
+    filename: str | Path, mesh: dmesh.Mesh, facet_tags: dmesh.MeshTags | None = None
+) -> None:
+    """Write a triangle mesh of any geometry degree (and its facet tags) to a VTKHDF file.
+
+    The nodes written are the mesh's coordinate map evaluated at the equispaced Lagrange
+    points of each cell (what VTKHDF and ParaView expect); ``mesh`` itself is not changed.
+    Facet tags go to :func:`tags_path`; without tags, a stale sidecar is removed. Collective.
+
+    Parameters
+    ----------
+    filename
+        The VTKHDF file (conventionally ``.vtkhdf``), overwritten.
+    mesh
+        A triangle mesh with a degree-k Lagrange coordinate element (any variant).
+    facet_tags
+        Tags of facets of ``mesh`` (owned and/or ghost facets), or ``None``.
+
+    Raises
+    ------
+    ValueError
+        If ``mesh`` is not a triangle mesh or the tags are not facet tags.
+    OSError
+        If the sidecar cannot be written (on every rank).
+    """
+    _check_triangles(mesh, "write_mesh")
+    comm = mesh.comm
+    degree = mesh.geometry.cmaps[0].degree
+    out = mesh
+    if degree >= 3 and _variant(mesh) != basix.LagrangeVariant.equispaced:
+        # Same topology, geometry = the same map interpolated at equispaced points.
+        ce = fem.coordinate_element(
+            dmesh.CellType.triangle, degree, basix.LagrangeVariant.equispaced
+        )
+        out = fem.interpolate_geometry(mesh, ce)
+    vtkhdf.write_mesh(str(filename), out)
+
+    sidecar = tags_path(filename)
+    if facet_tags is None:
+        _on_root(comm, lambda: sidecar.unlink(missing_ok=True))
+        comm.barrier()
+        return
+    if facet_tags.dim != mesh.topology.dim - 1:
+        raise ValueError(f"write_mesh: facet_tags has dimension {facet_tags.dim}, expected 1")
+    imap = out.geometry.index_map()
+    nodes = _facet_vertex_nodes(out, facet_tags.indices.astype(np.int32))
+    # Written node order = global geometry index (each rank writes its owned range).
+    pairs = imap.local_to_global(nodes.ravel()).reshape(-1, 2)
+    pairs = np.sort(pairs.astype(np.int64), axis=1)
+    gathered = comm.gather((pairs, np.asarray(facet_tags.values)), root=0)
+
+    def save() -> None:
+        p = np.concatenate([g[0] for g in gathered]).reshape(-1, 2)
+        v = np.concatenate([g[1] for g in gathered])
+        # A facet tagged on several ranks (ghosts) is stored once.
+        _, first = np.unique(_keys(p, imap.size_global), return_index=True)
+        with open(sidecar, "wb") as f:  # np.savez would append ".npz" to other names
+            np.savez(
+                f,
+                version=np.int64(_FORMAT_VERSION),
+                dim=np.int64(facet_tags.dim),
+                num_nodes=np.int64(imap.size_global),
+                vertices=p[first],
+                values=v[first],
+            )
+
+    _on_root(comm, save)
+    comm.barrier()
+
+
+def _tags_from_file(raw: dmesh.Mesh, msh: dmesh.Mesh, sidecar: Path) -> dmesh.MeshTags | None:
+    """Facet tags of ``msh`` (created from ``raw``) from the sidecar of the file of ``raw``."""
+    comm = msh.comm
+
+    def load() -> dict | None:
+        if not sidecar.exists():
+            return None
+        with np.load(sidecar) as d:
+            return {k: d[k] for k in d.files}
+
+    data = _on_root(comm, load)
+    if data is None:
+        return None
+    imap = raw.geometry.index_map()
+    n = imap.size_global
+    if int(data["num_nodes"]) != n or int(data["dim"]) != 1:
+        raise ValueError(
+            f"{sidecar} does not belong to its mesh file ({int(data['num_nodes'])} nodes "
+            f"recorded, {n} read)"
+        )
+    # File node index -> global node index of `raw` (= the input index of `msh`), translated
+    # on the ranks that hold both vertices of a facet; every tagged facet lies on one.
+    nloc = imap.size_local + imap.num_ghosts
+    file_idx = np.asarray(raw.geometry.input_global_indices, dtype=np.int64)[:nloc]
+    order = np.argsort(file_idx)
+    sorted_idx = file_idx[order]
+    wanted = np.asarray(data["vertices"], dtype=np.int64).reshape(-1, 2)
+    pos = np.minimum(np.searchsorted(sorted_idx, wanted), max(len(sorted_idx) - 1, 0))
+    here = (
+        np.all(sorted_idx[pos] == wanted, axis=1)
+        if len(sorted_idx)
+        else np.zeros(len(wanted), bool)
+    )
+    glob = imap.local_to_global(order[pos[here]].ravel().astype(np.int32)).reshape(-1, 2)
+    found = comm.allgather((_keys(glob, n), np.asarray(data["values"])[here]))
+    keys = np.concatenate([f[0] for f in found])
+    values = np.concatenate([f[1] for f in found]).astype(data["values"].dtype)
+    keys, first = np.unique(keys, return_index=True)
+    values = values[first]
+
+    msh.topology.create_entities(1)
+    fmap = msh.topology.index_map(1)
+    facets = np.arange(fmap.size_local + fmap.num_ghosts, dtype=np.int32)
+    nodes = _facet_vertex_nodes(msh, facets)
+    inp = np.asarray(msh.geometry.input_global_indices, dtype=np.int64)
+    fkeys = _keys(inp[nodes.ravel()], n)
+    pos = np.minimum(np.searchsorted(keys, fkeys), max(len(keys) - 1, 0))
+    hit = keys[pos] == fkeys if len(keys) else np.zeros(len(fkeys), bool)
+    return dmesh.meshtags(msh, 1, facets[hit], values[pos[hit]])
+
+
+def read_mesh(
+    comm: MPI.Comm,
+    filename: str | Path,
+    *,
+    variant: basix.LagrangeVariant = basix.LagrangeVariant.gll_warped,
+) -> tuple[dmesh.Mesh, dmesh.MeshTags | None]:
+    """Read a triangle mesh (and its facet tags) written by :func:`write_mesh`, on any ranks.
+
+    The file's equispaced degree-k map is evaluated at the nodes of ``variant`` in every
+    cell, and the mesh is recreated with that Lagrange coordinate element (geometric
+    dimension 2) and shared-facet ghosts. Plain VTKHDF triangle files of other writers are
+    read too (without tags). Collective.
+
+    Parameters
+    ----------
+    comm
+        Communicator to distribute the mesh over (any size, not necessarily the writer's).
+    filename
+        The VTKHDF file.
+    variant
+        Lagrange variant of the returned coordinate element; the default ``gll_warped`` is
+        that of :func:`~dolfinx_universal.curved.curved_mesh`.
+
+    Returns
+    -------
+    mesh
+        The mesh.
+    facet_tags
+        Its facet tags (owned and ghost facets) from :func:`tags_path`, or ``None`` when the
+        file has no sidecar.
+
+    Raises
+    ------
+    ValueError
+        If the file is not a triangle mesh or the sidecar belongs to another mesh.
+    """
+    raw = vtkhdf.read_mesh(comm, str(filename), gdim=2)
+    _check_triangles(raw, "read_mesh")
+    degree = raw.geometry.cmaps[0].degree
+    source = basix.create_element(
+        basix.ElementFamily.P, basix.CellType.triangle, degree, _variant(raw)
+    )
+    target = basix.create_element(basix.ElementFamily.P, basix.CellType.triangle, degree, variant)
+    phi = source.tabulate(0, target.points)[0, :, :, 0]  # (target points, source nodes)
+    dofmap = raw.geometry.dofmaps[0]
+    imap = raw.geometry.index_map()
+    # Rows of a geometry dofmap follow the reference node order of each cell (vertices,
+    # edges in the cell's own direction, interior), as the coordinate element evaluates them.
+    cell_x = np.einsum("pj,cjd->cpd", phi, raw.geometry.x[dofmap, :2])
+    x = np.empty((imap.size_local + imap.num_ghosts, 2))
+    x[dofmap.ravel()] = cell_x.reshape(-1, 2)  # shared nodes agree to rounding
+    num_cells = raw.topology.index_map(2).size_local
+    cells = imap.local_to_global(dofmap[:num_cells].ravel()).reshape(num_cells, -1)
+    element = basix.ufl.element(
+        "Lagrange", "triangle", degree, shape=(2,), lagrange_variant=variant
+    )
+    msh = dmesh.create_mesh(
+        comm,
+        cells.astype(np.int64),
+        element,
+        np.ascontiguousarray(x[: imap.size_local]),
+        partitioner=ghosted_partitioner() if comm.size > 1 else None,
+    )
+    return msh, _tags_from_file(raw, msh, tags_path(filename))
+
+
+def write_fields(
+    filename: str | Path,
+    functions: fem.Function | Sequence[fem.Function],
+    time: float = 0.0,
+    engine: str = "BPFile",
+) -> None:
+    """Write functions of any Lagrange degree for ParaView with ``dolfinx.io.VTXWriter``.
+
+    VTX writes the functions' degrees of freedom as the nodes of VTK Lagrange cells, which
+    ParaView takes as equispaced; functions of degree >= 3 in another variant (basix's
+    default is GLL-warped) are therefore first interpolated, exactly, into the equispaced
+    space of the same degree, so that ParaView shows the true fields on the true curved
+    cells (to the functions' degree). The output (an ADIOS2 ``.bp`` folder) is write-only:
+    use :func:`write_mesh` for checkpoints of the mesh. Collective.
+
+    Parameters
+    ----------
+    filename
+        Output folder, conventionally ``name.bp``; overwritten.
+    functions
+        One function or several on the same mesh with the same element (a VTX requirement).
+    time
+        Time stamp of this single step.
+    engine
+        ADIOS2 engine.
+    """
+    funcs = [functions] if isinstance(functions, fem.Function) else list(functions)
+    if not funcs:
+        raise ValueError("write_fields: no functions given")
+    out = []
+    for u in funcs:
+        e = u.function_space.ufl_element()
+        variant = getattr(e, "lagrange_variant", basix.LagrangeVariant.unset)
+        if e.degree >= 3 and variant not in (
+            basix.LagrangeVariant.equispaced,
+            basix.LagrangeVariant.unset,
+        ):
+            msh = u.function_space.mesh
+            shape = e.reference_value_shape
+            eq = basix.ufl.element(
+                e.family_name,
+                msh.basix_cell(),
+                e.degree,
+                lagrange_variant=basix.LagrangeVariant.equispaced,
+                shape=shape if shape else None,
+                discontinuous=e.discontinuous,
+            )
+            w = fem.Function(fem.functionspace(msh, eq), name=u.name)
+            w.interpolate(u)
+            u = w
+        out.append(u)
+    with VTXWriter(out[0].function_space.mesh.comm, str(filename), out, engine=engine) as f:
+        f.write(time)

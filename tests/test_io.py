@@ -1,0 +1,168 @@
+"""Checkpoints of curved meshes: VTKHDF round trips for degrees 1-4, tags, ranks, VTX output."""
+
+from __future__ import annotations
+
+import shutil
+import sys
+from pathlib import Path
+
+from mpi4py import MPI
+
+import basix
+import numpy as np
+import pytest
+from conftest import run_mpi_json
+from dolfinx.io import vtkhdf
+from scipy.spatial import cKDTree
+
+from dolfinx_universal import io as duio
+
+sys.path.insert(0, str(Path(__file__).parent / "mpi"))
+from io_roundtrip import cases, fingerprint  # noqa: E402
+
+comm = MPI.COMM_WORLD
+GLL = int(basix.LagrangeVariant.gll_warped)
+
+# Area: the same polynomial map, re-evaluated GLL -> equispaced -> GLL (each step a few ulps
+# times the Lebesgue constant, < 10 up to degree 4) and assembled over re-ordered cells:
+# ~1e-15 relative. 1e-12 leaves room for the summation order yet is 1e7 times smaller
+# than the 5e-5 of writing GLL-warped nodes as equispaced ones.
+AREA_RTOL = 1e-12
+NODE_ATOL = 1e-13
+
+
+@pytest.fixture(scope="module")
+def meshes():
+    return cases(comm)
+
+
+def same_points(a: list, b: list, atol: float = NODE_ATOL) -> None:
+    """The point sets are equal up to ``atol``: one-to-one nearest neighbours (order-free)."""
+    a, b = np.asarray(a).reshape(-1, 2), np.asarray(b).reshape(-1, 2)
+    assert a.shape == b.shape
+    if len(a) == 0:
+        return
+    dist, idx = cKDTree(b).query(a)
+    assert dist.max() <= atol, dist.max()
+    assert len(np.unique(idx)) == len(a)
+
+
+def assert_same(a: dict, b: dict) -> None:
+    """Two fingerprints (tests/mpi/io_roundtrip.py) describe the same mesh and tags."""
+    assert a["degree"] == b["degree"]
+    assert a["variant"] == b["variant"]
+    assert a["num_cells"] == b["num_cells"]
+    assert a["area"] == pytest.approx(b["area"], rel=AREA_RTOL)
+    same_points(a["nodes"], b["nodes"])
+    assert a["tags"].keys() == b["tags"].keys()
+    for value in a["tags"]:
+        assert a["tags"][value]["count"] == b["tags"][value]["count"]
+        same_points(a["tags"][value]["midpoints"], b["tags"][value]["midpoints"])
+
+
+@pytest.mark.parametrize("name", ["disc1", "disc2", "disc3", "disc4", "holed3"])
+def test_round_trip(meshes, mpi_tmp_path, name):
+    cv = meshes[name]
+    x_before = cv.mesh.geometry.x.copy()
+    filename = mpi_tmp_path / f"{name}.vtkhdf"
+    duio.write_mesh(filename, cv.mesh, cv.facet_tags)
+    assert np.array_equal(cv.mesh.geometry.x, x_before)  # the user's mesh is not touched
+    msh, tags = duio.read_mesh(comm, filename)
+    assert tags is not None
+    a, b = fingerprint(cv.mesh, cv.facet_tags), fingerprint(msh, tags)
+    if comm.rank == 0:
+        assert_same(a, b)
+        assert b["variant"] == GLL
+        assert b["tags"]["1"]["count"] > 0
+        if name.startswith("disc"):
+            # The area error against pi is the curved mesh's own, not the IO's.
+            err_a, err_b = abs(a["area"] - np.pi), abs(b["area"] - np.pi)
+            assert err_b == pytest.approx(err_a, rel=1e-3, abs=1e-14)
+        if name == "disc4":
+            assert err_b < 1e-9
+        if name == "holed3":
+            assert b["tags"]["2"]["count"] > 0
+
+
+def test_plain_vtkhdf_distorts_gll_nodes(meshes, mpi_tmp_path):
+    """The DOLFINx 0.11 behaviour worked around: GLL-warped nodes are read as equispaced."""
+    cv = meshes["disc4"]
+    filename = mpi_tmp_path / "plain.vtkhdf"
+    vtkhdf.write_mesh(str(filename), cv.mesh)
+    plain = vtkhdf.read_mesh(comm, str(filename), gdim=2)
+    a = fingerprint(plain, _empty_tags(plain))["area"]
+    if comm.rank == 0:
+        assert abs(a - np.pi) > 1e-6  # if this fails, DOLFINx writes variants correctly now
+
+
+def _empty_tags(msh):
+    from dolfinx import mesh as dmesh
+
+    msh.topology.create_entities(1)
+    return dmesh.meshtags(msh, 1, np.zeros(0, np.int32), np.zeros(0, np.int32))
+
+
+def test_equispaced_variant_and_no_tags(meshes, mpi_tmp_path):
+    cv = meshes["disc3"]
+    filename = mpi_tmp_path / "m.vtkhdf"
+    duio.write_mesh(filename, cv.mesh, cv.facet_tags)
+    assert duio.tags_path(filename).exists()
+    duio.write_mesh(filename, cv.mesh)  # no tags: the stale sidecar goes
+    assert not duio.tags_path(filename).exists()
+    msh, tags = duio.read_mesh(comm, filename, variant=basix.LagrangeVariant.equispaced)
+    assert tags is None
+    assert msh.geometry.cmaps[0].variant == int(basix.LagrangeVariant.equispaced)
+    a, b = fingerprint(cv.mesh, _empty_tags(cv.mesh)), fingerprint(msh, _empty_tags(msh))
+    if comm.rank == 0:
+        assert b["area"] == pytest.approx(a["area"], rel=AREA_RTOL)
+
+
+def test_sidecar_of_another_mesh(meshes, mpi_tmp_path):
+    duio.write_mesh(mpi_tmp_path / "a.vtkhdf", meshes["disc2"].mesh, meshes["disc2"].facet_tags)
+    duio.write_mesh(mpi_tmp_path / "b.vtkhdf", meshes["disc1"].mesh)
+    if comm.rank == 0:
+        shutil.copy(duio.tags_path(mpi_tmp_path / "a.vtkhdf"), mpi_tmp_path / "b.tags.npz")
+    comm.barrier()
+    with pytest.raises(ValueError, match="does not belong"):
+        duio.read_mesh(comm, mpi_tmp_path / "b.vtkhdf")
+
+
+def test_write_fields(meshes, mpi_tmp_path):
+    from dolfinx import fem
+
+    msh = meshes["disc4"].mesh
+    u = fem.Function(fem.functionspace(msh, ("Lagrange", 4)), name="u")
+    u.interpolate(lambda x: x[0] ** 4 - x[1])
+    v = fem.Function(fem.functionspace(msh, ("Lagrange", 4)), name="v")
+    v.interpolate(lambda x: x[0] * x[1])
+    duio.write_fields(mpi_tmp_path / "uv.bp", [u, v])
+    w = fem.Function(fem.functionspace(msh, ("Lagrange", 2, (2,))), name="w")
+    duio.write_fields(mpi_tmp_path / "w.bp", w)
+    comm.barrier()
+    assert (mpi_tmp_path / "uv.bp").is_dir() and (mpi_tmp_path / "w.bp").is_dir()
+    with pytest.raises(ValueError, match="no functions"):
+        duio.write_fields(mpi_tmp_path / "none.bp", [])
+
+
+@pytest.mark.mpi
+def test_write_and_read_on_other_rank_counts(tmp_path):
+    """Write on 2 ranks / read on 1 and write on 1 / read on 2: the same meshes and tags."""
+    runs = {}
+    for writers, readers in ((2, 1), (1, 2)):
+        folder = tmp_path / f"w{writers}"
+        folder.mkdir()
+        runs[writers, "w"] = run_mpi_json(
+            writers, "io_roundtrip.py", tmp_path / f"w{writers}.json", "write", str(folder)
+        )
+        runs[writers, "r"] = run_mpi_json(
+            readers, "io_roundtrip.py", tmp_path / f"r{readers}.json", "read", str(folder)
+        )
+        assert runs[writers, "r"]["nprocs"] == readers
+    names = [k for k in runs[1, "w"] if k != "nprocs"]
+    assert len(names) == 5
+    for name in names:
+        assert_same(runs[2, "w"][name], runs[2, "r"][name])
+        assert_same(runs[1, "w"][name], runs[1, "r"][name])
+        assert_same(runs[2, "r"][name], runs[1, "r"][name])  # identical on 1 and 2 readers
+        if name == "disc4":
+            assert abs(runs[1, "r"][name]["area"] - np.pi) < 1e-9
