@@ -22,6 +22,7 @@ from .classify import conditioning_angle, positive_edges, positively_cut
 from .conform import IMMERSED, OUTER, ConformingMesh, UniversalMesh, conform
 from .constraints import SlipConstraint
 from .curved import CurvedMesh, boundary_dof_data, curved_mesh
+from . import io
 from .domain import Certificate, MeshedDomain, mesh_domain
 from .graded import graded_mesh
 from .moving import MovingDomain
@@ -58,6 +59,7 @@ __all__ = [
     "curved_mesh",
     "equilateral_mesh",
     "graded_mesh",
+    "io",
     "mesh_domain",
     "positive_edges",
     "positively_cut",

@@ -218,6 +218,14 @@ def polar_functions(
 # --------------------------------------------------------------------------------------------
 
 
+def _version() -> str:
+    import dolfinx
+
+    from . import __version__
+
+    return f"{__version__} (DOLFINx {dolfinx.__version__})"
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``dolfinx-universal`` / ``python -m dolfinx_universal``."""
     p = _Parser(
@@ -230,7 +238,9 @@ def build_parser() -> argparse.ArgumentParser:
             "edges onto it and relaxing nearby interior vertices (no vertex added); where a "
             "validity check fails the background is refined there and the curve meshed "
             "again. Optionally the cells along the curve are curved (degree-K Lagrange "
-            "geometry). Writes mesh.bp (VTX), mesh.xdmf (grids 'mesh' and 'facet_tags': 1 = "
+            "geometry). Writes mesh.vtkhdf + mesh.tags.npz (a checkpoint for any degree: "
+            "dolfinx_universal.io.read_mesh reads it back with its facet tags; ParaView "
+            "reads the .vtkhdf), mesh.bp (VTX), mesh.xdmf (grids 'mesh' and 'facet_tags': 1 = "
             "immersed boundary, 2 = outer; K <= 2 only), mesh.png and summary.json (with the "
             "validity certificate). Lengths are in the units of the curve's coordinates. "
             "Runs under mpirun (only rank 0 prints and plots)."
@@ -353,6 +363,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     o.add_argument("--no-plot", action="store_true", help="do not write mesh.png")
     o.add_argument("--quiet", action="store_true", help="print nothing on success")
+    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
     return p
 
 
@@ -481,6 +492,8 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
     from .background import equilateral_mesh
     from .conform import IMMERSED, OUTER, conform
     from .curved import curved_mesh
+    from .demo_support import versions
+    from .io import tags_path, write_mesh
     from .domain import _auto_box, mesh_domain
     from .quality import quality_report
     from .validation import MeshingError
@@ -493,6 +506,16 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
     extent = float((bbox[1] - bbox[0]).max())
     if not (np.all(np.isfinite(bbox)) and extent > 0):
         raise ArgumentError(f"the shape has an empty or invalid bounding box {bbox.tolist()}")
+    far = float(np.abs(bbox).max())
+    if far > 1e8 * extent:  # float64 keeps 16 digits: fewer than 8 would be left for h
+        raise ArgumentError(
+            f"the shape (extent {extent:.3g}) lies {far:.3g} from the origin: float64 "
+            "coordinates would keep too few digits to mesh it; move it near the origin "
+            "(e.g. --center 0 0) and shift the mesh afterwards"
+        )
+    out = Path(args.out)
+    _prepare_out(comm, out)
+    plot = not args.no_plot and _have_matplotlib(comm)
     divisor = 20.0 if args.uniform else 10.0
     h = float(f"{extent / divisor:.3g}") if args.h is None else float(args.h)
     margin = (args.rr + 1.0) * h if args.margin is None else float(args.margin)
@@ -557,13 +580,11 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
 
     # Output files.
     t = time.perf_counter()
-    out = Path(args.out)
-    if comm.rank == 0:
-        out.mkdir(parents=True, exist_ok=True)
-    comm.barrier()
+    write_mesh(out / "mesh.vtkhdf", msh, tags)  # a checkpoint for any degree, with its tags
+    files = ["mesh.vtkhdf", tags_path(out / "mesh.vtkhdf").name]
     with io.VTXWriter(comm, out / "mesh.bp", msh, engine="BPFile") as vtx:
         vtx.write(0.0)
-    files = ["mesh.bp"]
+    files.append("mesh.bp")
     if args.degree <= 2:
         with io.XDMFFile(comm, out / "mesh.xdmf", "w") as xdmf:
             xdmf.write_mesh(msh)
@@ -575,7 +596,7 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
             (out / name).unlink(missing_ok=True)
     timings["write"] = time.perf_counter() - t
 
-    if not args.no_plot:
+    if plot:
         t = time.perf_counter()
         from .plotting import plot_conforming, save
 
@@ -619,6 +640,7 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
         "certificate": certificate.as_dict() if certificate is not None else None,
         "mpi_size": comm.size,
         "dolfinx_version": dolfinx.__version__,
+        "versions": versions(),
         "files": files,
         "timings_s": timings,
     }
@@ -630,6 +652,30 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
             fh.write("\n")
     comm.barrier()
     return summary
+
+
+def _prepare_out(comm: MPI.Comm, out: Path) -> None:
+    """Create the output folder on rank 0; a failure is an ArgumentError on every rank."""
+    error = None
+    if comm.rank == 0:
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            error = f"--out {str(out)!r}: cannot create the output folder: {e.strerror or e}"
+    error = comm.bcast(error, root=0)
+    if error is not None:
+        raise ArgumentError(error)
+
+
+def _have_matplotlib(comm: MPI.Comm) -> bool:
+    """Whether matplotlib is importable (rank 0 decides; rank 0 warns when it is not)."""
+    import importlib.util
+
+    ok = comm.bcast(importlib.util.find_spec("matplotlib") is not None, root=0)
+    if not ok and comm.rank == 0:
+        print(f"{PROG}: warning: matplotlib is not installed, mesh.png is not written "
+              "(pip install dolfinx_universal[plot])", file=sys.stderr, flush=True)
+    return ok
 
 
 def _title(shape: dict[str, Any], h: float, args: argparse.Namespace) -> str:

@@ -250,6 +250,12 @@ def curved_mesh(
     MeshingError
         If a curved cell is inverted (its Jacobian determinant changes sign).
     """
+    if not isinstance(cm, ConformingMesh):
+        raise TypeError(
+            "curved_mesh needs the ConformingMesh returned by conform (it carries the "
+            f"background positions, signs and the boundary), got {type(cm).__name__}: use "
+            "curved_mesh(conform(background, boundary), degree)"
+        )
     if map not in MAPS:
         raise ValueError(f"unknown map {map!r}: choose one of {MAPS}")
     if int(degree) != degree or degree < 1:

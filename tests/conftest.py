@@ -1,4 +1,10 @@
-"""Shared fixtures: MPI-safe temporary directories and a runner for scripts under mpirun."""
+"""Shared fixtures: MPI-safe temporary directories, MPI markers, a runner for demo scripts.
+
+MPI tests are marked ``mpi`` and run in-process on every rank: ``.ci/test`` runs
+``mpirun -n 2`` and ``-n 3 python -m pytest -m mpi`` (tests marked ``skip_in_parallel`` skip
+there). Demos are run as scripts, serially and under mpirun, by :func:`run_mpi` (as DOLFINx's
+own demo tests do).
+"""
 
 from __future__ import annotations
 
@@ -14,6 +20,33 @@ import pytest
 import dolfinx_universal  # noqa: F401  (initialises the DOLFINx wheel before dolfinx imports)
 
 ROOT = Path(__file__).resolve().parents[1]
+
+
+def pytest_configure(config):
+    config.addinivalue_line(
+        "markers",
+        "skip_in_parallel: serial-only test (skipped when pytest itself runs under mpirun)",
+    )
+
+
+def pytest_collection_modifyitems(config, items):
+    from mpi4py import MPI
+
+    if MPI.COMM_WORLD.size == 1:
+        return
+    skip = pytest.mark.skip(reason="serial-only test (running under mpirun)")
+    for item in items:
+        if "skip_in_parallel" in item.keywords:
+            item.add_marker(skip)
+
+
+def needs_ranks(n: int = 2):
+    """Skip unless pytest runs on at least ``n`` ranks (``mpirun -n N python -m pytest -m mpi``)."""
+    from mpi4py import MPI
+
+    return pytest.mark.skipif(
+        MPI.COMM_WORLD.size < n, reason=f"needs mpirun with >= {n} ranks (see .ci/test)"
+    )
 
 
 def mpirun() -> str | None:

@@ -3,18 +3,16 @@
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 from mpi4py import MPI
 
 import numpy as np
 import pytest
+from conftest import needs_ranks
 from dolfinx import io
 
-from dolfinx_universal.cli import ArgumentError, main, polar_functions
+from dolfinx_universal.cli import ArgumentError, build_parser, main, polar_functions, run
 
 comm = MPI.COMM_WORLD
 ROOT = Path(__file__).resolve().parents[1]
@@ -99,6 +97,17 @@ def test_curved_outputs(mpi_tmp_path):
     assert msh.geometry.cmaps[0].degree == 2
     owned = tags.find(1) < msh.topology.index_map(1).size_local
     assert comm.allreduce(int(owned.sum())) == s["facets"]["counts"]["immersed"]
+
+    # Any degree: the checkpoint is read back with its tags.
+    out4 = mpi_tmp_path / "p4"
+    assert main(["--circle", "1", "--degree", "4", "--out", str(out4), "--quiet", "--no-plot"]) == 0
+    from dolfinx_universal.io import read_mesh
+
+    m4, t4 = read_mesh(comm, out4 / "mesh.vtkhdf")
+    s4 = read_summary(out4)
+    assert m4.geometry.cmaps[0].degree == 4 and m4.topology.index_map(2).size_global == s4["n_cells"]
+    nf = m4.topology.index_map(1).size_local
+    assert comm.allreduce(int((t4.find(1) < nf).sum())) == s4["facets"]["counts"]["immersed"]
 
     argv = ["--circle", "1", "--degree", "3", "--map", "G~", "--no-plot", "--quiet"]
     assert main([*argv, "--out", str(out3)]) == 0
@@ -230,26 +239,61 @@ def test_polar_derivatives():
 
 
 @pytest.mark.mpi
-def test_mpirun_matches_serial(tmp_path):
-    if comm.size > 1:
-        pytest.skip("runs its own mpirun")
-    mpirun = Path(sys.executable).parent / "mpirun"
-    if not mpirun.exists():
-        pytest.skip("no mpirun next to the Python executable")
-    args = ["--circle", "1.0", "--center", "0.05", "0.02", "--h", "0.08"]
-    assert main([*args, "--out", str(tmp_path / "serial"), "--quiet"]) == 0
-    env = dict(os.environ, OMP_NUM_THREADS="1", MPLBACKEND="Agg")
-    cmd = [str(mpirun), "-n", "2", sys.executable, "-m", "dolfinx_universal", *args,
-           "--out", str(tmp_path / "mpi")]
-    proc = subprocess.run(cmd, cwd=ROOT, env=env, capture_output=True, text=True, timeout=180)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    assert proc.stdout.count("unaltered") == 1  # rank 0 prints alone
-    assert proc.stdout.count("universal mesh certificate") == 1
-    serial, parallel = read_summary(tmp_path / "serial"), read_summary(tmp_path / "mpi")
-    assert parallel["mpi_size"] == 2
+@needs_ranks(2)
+def test_mpirun_matches_serial(mpi_tmp_path, capsys):
+    args = ["--circle", "1.0", "--center", "0.05", "0.02", "--h", "0.3"]
+    assert main([*args, "--out", str(mpi_tmp_path / "mpi")]) == 0
+    printed = capsys.readouterr().out
+    assert printed.count("unaltered") == (1 if comm.rank == 0 else 0)  # rank 0 prints alone
+    assert printed.count("universal mesh certificate") == (1 if comm.rank == 0 else 0)
+    own = mpi_tmp_path / f"serial{comm.rank}"
+    serial = run(build_parser().parse_args([*args, "--out", str(own), "--no-plot"]), MPI.COMM_SELF)
+    parallel = read_summary(mpi_tmp_path / "mpi")
+    assert parallel["mpi_size"] == comm.size
     assert parallel["n_cells"] == serial["n_cells"]
     assert parallel["facets"] == serial["facets"]
     for key in ("n_positively_cut", "n_unaltered", "n_inverted"):
         assert parallel["quality"][key] == serial["quality"][key]
     assert parallel["quality"]["theta_min_deg"] == pytest.approx(serial["quality"]["theta_min_deg"])
-    assert (tmp_path / "mpi" / "mesh.png").stat().st_size > 0
+    assert parallel["certificate"]["num_cells"] == serial["certificate"]["num_cells"]
+    assert (mpi_tmp_path / "mpi" / "mesh.png").stat().st_size > 0
+
+
+@pytest.mark.mpi
+def test_unwritable_out_fails_on_every_rank(mpi_tmp_path, capsys):
+    """Rank 0 cannot create --out (a file is in the way): every rank returns 2, none hangs."""
+    blocker = mpi_tmp_path / "a_file"
+    if comm.rank == 0:
+        blocker.write_text("x")
+    comm.barrier()
+    assert main(["--circle", "1", "--out", str(blocker / "sub"), "--no-plot"]) == 2
+    err = capsys.readouterr().err
+    if comm.rank == 0:
+        assert "cannot create the output folder" in err and err.count("\n") == 1
+
+
+def test_far_from_origin_and_version(mpi_tmp_path, capsys):
+    assert main(["--circle", "1", "--center", "1e17", "0", "--out", str(mpi_tmp_path)]) == 2
+    err = capsys.readouterr().err
+    if comm.rank == 0:
+        assert "move it near the origin" in err and err.count("\n") == 1
+    with pytest.raises(SystemExit) as info:
+        build_parser().parse_args(["--version"])
+    assert info.value.code == 0
+    if comm.rank == 0:
+        out = capsys.readouterr().out
+        assert "dolfinx-universal 0." in out and "DOLFINx 0.11" in out
+
+
+@pytest.mark.skip_in_parallel
+def test_without_matplotlib(tmp_path, capsys, monkeypatch):
+    """No matplotlib: a warning, no mesh.png, and still a summary."""
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "matplotlib" else real(name, *a)
+    )
+    assert main(["--circle", "1", "--out", str(tmp_path)]) == 0
+    assert "matplotlib is not installed" in capsys.readouterr().err
+    assert (tmp_path / "summary.json").exists() and not (tmp_path / "mesh.png").exists()

@@ -3,9 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
-import sys
-from pathlib import Path
 
 from mpi4py import MPI
 from petsc4py import PETSc
@@ -14,6 +11,7 @@ import basix.ufl
 import numpy as np
 import pytest
 import ufl
+from conftest import needs_ranks
 from dolfinx import fem
 
 import dolfinx_universal as du
@@ -32,8 +30,10 @@ def g_value(x: np.ndarray) -> np.ndarray:
     return 0.3 + 0.2 * x[:, 0] - 0.1 * x[:, 1] ** 2
 
 
-def disc_mesh(h: float, map_: str = "I", degree: int = 2, centre=CENTRE) -> du.CurvedMesh:
-    bg = du.equilateral_mesh(comm, [[-1.5, -1.5], [1.5, 1.5]], h)
+def disc_mesh(
+    h: float, map_: str = "I", degree: int = 2, centre=CENTRE, c: MPI.Comm = comm
+) -> du.CurvedMesh:
+    bg = du.equilateral_mesh(c, [[-1.5, -1.5], [1.5, 1.5]], h)
     return du.curved_mesh(du.conform(bg, du.Circle(centre, 1.0)), degree, map_)
 
 
@@ -72,9 +72,11 @@ def reference_facet_tangents(V: fem.FunctionSpace, curved: du.CurvedMesh):
     return out
 
 
-def check_case(component: str, tangent: str, map_: str, degree: int, h: float = 0.2) -> dict:
+def check_case(
+    component: str, tangent: str, map_: str, degree: int, h: float = 0.2, mc: MPI.Comm = comm
+) -> dict:
     """Solve with a nonzero constraint value; residuals (module and independent) and a norm."""
-    curved = disc_mesh(h, map_, degree)
+    curved = disc_mesh(h, map_, degree, c=mc)
     V = fem.functionspace(curved.mesh, ("Lagrange", 2, (2,)))
     slip = SlipConstraint(V, curved, component=component, value=g_value, tangent=tangent)
     a, L = vector_problem(V)
@@ -99,16 +101,16 @@ def check_case(component: str, tangent: str, map_: str, degree: int, h: float = 
     single, double = slip.num_constrained
     return {
         "residual": slip.residual(u),
-        "reference_residual": comm.allreduce(float(ref), op=MPI.MAX),
-        "norm": float(np.sqrt(comm.allreduce(norm))),
+        "reference_residual": mc.allreduce(float(ref), op=MPI.MAX),
+        "norm": float(np.sqrt(mc.allreduce(norm))),
         "single": single,
         "double": double,
-        "max_u": comm.allreduce(float(np.abs(arr).max()), op=MPI.MAX),
+        "max_u": mc.allreduce(float(np.abs(arr).max()), op=MPI.MAX),
     }
 
 
-def check_all() -> dict:
-    return {"/".join(map(str, case)): check_case(*case) for case in CASES}
+def check_all(c: MPI.Comm = comm) -> dict:
+    return {"/".join(map(str, case)): check_case(*case, mc=c) for case in CASES}
 
 
 @pytest.fixture(scope="module")
@@ -137,15 +139,10 @@ def test_true_and_discrete_differ(serial_results):
 
 
 @pytest.mark.mpi
-def test_two_ranks_agree(serial_results, tmp_path):
-    from conftest import run_mpi
-
-    if comm.size > 1:
-        pytest.skip("runs its own mpirun")
-    out = tmp_path / "constraints.json"
-    run_mpi(2, [str(Path(__file__).resolve()), str(out)], timeout=120)
-    parallel = json.loads(out.read_text())
-    for case, ref in serial_results.items():
+@needs_ranks(2)
+def test_ranks_agree():
+    serial, parallel = check_all(MPI.COMM_SELF), check_all(comm)
+    for case, ref in serial.items():
         got = parallel[case]
         assert got["residual"] < 1e-13 * max(1.0, got["max_u"]), case
         assert got["reference_residual"] < 1e-12, case
@@ -302,10 +299,3 @@ def test_manufactured_convergence(component):
     print(f"{component}: L2 {errors[:, 0]} rate {rate_l2:.2f}; H1 {errors[:, 1]} "
           f"rate {rate_h1:.2f}")
     assert abs(rate_l2 - 3) < 0.25 and abs(rate_h1 - 2) < 0.25
-
-
-if __name__ == "__main__":  # worker for test_two_ranks_agree: python this.py OUT.json
-    results = check_all()
-    if comm.rank == 0:
-        Path(sys.argv[1]).write_text(json.dumps(results))
-    PETSc.garbage_cleanup()

@@ -17,6 +17,7 @@ from typing import Any
 from mpi4py import MPI
 
 import pytest
+from conftest import needs_ranks
 from mesh_checks import check_mesh
 from random_domains import KINDS, random_domain
 
@@ -118,16 +119,22 @@ def test_cases_cover_every_kind_and_degree():
     assert len(CASES) >= 100
 
 
-@pytest.mark.mpi
-def test_random_domains_in_parallel(tmp_path):
-    """The same meshes, certificates and measurements on one and two ranks."""
-    from conftest import run_mpi_json
+def _record(seed: int, degree: int, c: MPI.Comm) -> dict[str, Any]:
+    r = run_case(seed, degree, c)
+    cert = r.pop("certificate", None)
+    r.pop("domain")
+    rec = {k: v for k, v in r.items() if not k.endswith("_at") and not k.endswith("_time")}
+    rec["refinement_rounds"] = getattr(cert, "refinement_rounds", None)
+    return rec
 
-    seeds = "0:2,6:3,12:4,13:2,19:1"
-    ref = run_mpi_json(1, "random_domains_mpi.py", tmp_path / "r1.json", seeds)
-    got = run_mpi_json(2, "random_domains_mpi.py", tmp_path / "r2.json", seeds)
-    for case, r in ref.items():
-        g = got[case]
+
+@pytest.mark.mpi
+@needs_ranks(2)
+def test_random_domains_in_parallel():
+    """The same meshes, certificates and measurements on all ranks as on one."""
+    for seed, degree in ((0, 2), (6, 3), (12, 4), (13, 2), (19, 1)):
+        g, r = _record(seed, degree, MPI.COMM_WORLD), _record(seed, degree, MPI.COMM_SELF)
+        case = r["label"]
         assert r["failures"] == [] and g["failures"] == [], (case, r["failures"], g["failures"])
         for k in ("num_cells", "n_loops", "n_pieces", "n_immersed_facets", "refinement_rounds"):
             assert g[k] == r[k], (case, k)
