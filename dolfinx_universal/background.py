@@ -1,8 +1,9 @@
-"""Background meshes: equilateral triangulations of a box, distributed with shared-facet ghosts."""
+"""Background meshes: equilateral triangulations, distribution with ghosts, per-vertex sizes."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import TYPE_CHECKING
 
 from mpi4py import MPI
 
@@ -12,13 +13,24 @@ import numpy.typing as npt
 from dolfinx import graph
 from dolfinx import mesh as dmesh
 
+from ._geometry import cell_diameters
+from .validation import vertex_reduce
+
+if TYPE_CHECKING:
+    from dolfinx.common import IndexMap
+
 __all__ = [
+    "GRADATION",
     "create_background_mesh",
     "equilateral_mesh",
     "equilateral_triangulation",
     "ghosted_partitioner",
     "refine_uniform",
+    "vertex_sizes",
 ]
+
+GRADATION = 0.2
+"""Lipschitz bound of the local size field used on graded backgrounds (``local_size``)."""
 
 
 def ghosted_partitioner():
@@ -84,7 +96,7 @@ def equilateral_triangulation(
 
 
 def create_background_mesh(
-    comm: MPI.Comm, x: npt.ArrayLike, cells: npt.ArrayLike, root: int = 0
+    comm: MPI.Comm, x: npt.ArrayLike | None, cells: npt.ArrayLike | None, root: int = 0
 ) -> dmesh.Mesh:
     """Distribute a triangulation given on one rank as a DOLFINx mesh with shared-facet ghosts.
 
@@ -93,14 +105,16 @@ def create_background_mesh(
     comm
         Communicator of the mesh.
     x
-        Vertex coordinates ``(num_vertices, 2)``, read on ``root`` only.
+        Vertex coordinates ``(num_vertices, 2)``, read on ``root`` only (may be None elsewhere).
     cells
-        Triangles ``(num_cells, 3)`` (global vertex indices), read on ``root`` only.
+        Triangles ``(num_cells, 3)`` (global vertex indices), read on ``root`` only (may be
+        None elsewhere).
     root
         Rank holding the data.
     """
     element = basix.ufl.element("Lagrange", "triangle", 1, shape=(2,))
     if comm.rank == root:
+        assert x is not None and cells is not None, "x and cells are required on root"
         x = np.ascontiguousarray(np.asarray(x, dtype=np.float64)[:, :2])
         cells = np.ascontiguousarray(np.asarray(cells, dtype=np.int64))
     else:
@@ -144,3 +158,61 @@ def refine_uniform(msh: dmesh.Mesh, times: int = 1) -> dmesh.Mesh:
         partitioner = ghosted_partitioner() if msh.comm.size > 1 else None
         msh, _, _ = dmesh.refine(msh, partitioner=partitioner)
     return msh
+
+
+def vertex_sizes(
+    imv: IndexMap,
+    x: npt.NDArray[np.float64],
+    c2v: npt.NDArray[np.int32],
+    num_owned: int,
+    local: bool,
+    comm: MPI.Comm,
+) -> npt.NDArray[np.float64]:
+    """Mesh size at each vertex: the global max diameter, or a smoothed local size (collective).
+
+    The local size starts as the largest diameter of the vertex's cells and is then raised
+    to the smallest field ``h_s >= h`` with ``|h_s(a) - h_s(b)| <= GRADATION |a - b|`` along
+    edges (a max-plus relaxation over the mesh graph). The relaxation ``alpha h (1 + phi/R_r)``
+    then has a small tangential gradient across the level changes of a graded background,
+    where the raw cell size jumps by a factor 2 (which folds triangles there).
+
+    Parameters
+    ----------
+    imv
+        Vertex index map of the mesh.
+    x
+        Process-local vertex coordinates (owned and ghost) ``(num_vertices, 2)``.
+    c2v
+        Cell -> vertex connectivity (owned cells first, then ghosts) ``(num_cells, 3)``.
+    num_owned
+        Number of owned cells.
+    local
+        Smoothed local sizes (graded backgrounds) instead of the global largest diameter.
+    comm
+        Communicator of the mesh.
+
+    Returns
+    -------
+    Sizes ``(num_vertices,)``, the same on every rank sharing a vertex.
+    """
+    diam = cell_diameters(x, c2v[:num_owned])
+    if not local:
+        hmax = comm.allreduce(float(diam.max()) if len(diam) else 0.0, op=MPI.MAX)
+        return np.full(len(x), hmax)
+    hv = np.zeros(len(x))
+    np.maximum.at(hv, c2v[:num_owned].ravel(), np.repeat(diam, 3))
+    hv = vertex_reduce(imv, hv, "max")
+    edges = np.unique(
+        np.sort(np.concatenate([c2v[:, [0, 1]], c2v[:, [1, 2]], c2v[:, [2, 0]]]), axis=1), axis=0
+    )
+    a, b = edges[:, 0], edges[:, 1]
+    drop = GRADATION * np.linalg.norm(x[a] - x[b], axis=1)
+    while True:
+        new = hv.copy()
+        np.maximum.at(new, a, hv[b] - drop)
+        np.maximum.at(new, b, hv[a] - drop)
+        new = vertex_reduce(imv, new, "max")
+        change = float(np.max(new - hv)) if len(hv) else 0.0
+        hv = new
+        if comm.allreduce(change, op=MPI.MAX) <= 1e-12 * (float(hv.max()) if len(hv) else 1.0):
+            return hv

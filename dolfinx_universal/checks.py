@@ -1,4 +1,4 @@
-"""Checks of a conforming mesh that no local test sees: Gamma_h topology and a quality floor."""
+"""Validity checks of a conforming mesh: classification, containment, Gamma_h, output, quality."""
 
 from __future__ import annotations
 
@@ -8,16 +8,257 @@ from mpi4py import MPI
 
 import numpy as np
 import numpy.typing as npt
+from dolfinx import geometry as dgeometry
 
-from .classify import interior_angles
-from .validation import Problem, where
+from ._geometry import Bool, Float, Int, cell_diameters, interior_angles, signed_areas
+from .classify import conditioning_angle, proximal_vertex
+from .validation import MeshingError, Problem, collective_call, where
 
 if TYPE_CHECKING:
+    from dolfinx import mesh as dmesh
+
+    from .boundaries import Boundary
+    from .pipeline import PositiveEdges
     from .sizing import CurveSamples
 
-__all__ = ["gamma_h_topology", "low_quality_cells"]
+__all__ = [
+    "classification_problems",
+    "containment_problems",
+    "conforming_problems",
+    "gamma_h_topology",
+    "low_quality_cells",
+    "require_kept",
+]
 
-Float = npt.NDArray[np.float64]
+
+def require_kept(comm: MPI.Comm, kept_owned: Bool, boundary: Boundary) -> None:
+    """Raise unless some rank keeps a cell, i.e. some background vertex lies inside (collective).
+
+    Parameters
+    ----------
+    comm
+        Communicator of the mesh.
+    kept_owned
+        Kept flags of this rank's owned cells ``(num_owned_cells,)``.
+    boundary
+        The domain (sampled for the places of the error).
+
+    Raises
+    ------
+    MeshingError
+        On every rank, when no rank keeps a cell.
+    """
+    if comm.allreduce(int(np.count_nonzero(kept_owned))) == 0:
+        raise MeshingError(
+            "no background vertex lies inside the domain: the domain is outside the "
+            "background mesh or smaller than its triangles; move or refine the background",
+            collective_call(comm, "sampling the boundary", boundary.sample, 64),
+        )
+
+
+def classification_problems(
+    xp: Float,
+    s: Float,
+    phi: Float,
+    edges: PositiveEdges,
+    c2v: Int,
+    c2f: Int,
+    f2c_offsets: Int,
+    f2c: Int,
+    num_owned_vertices: int,
+) -> tuple[list[Problem], float]:
+    """Local problems with the classification: the conditions of the method.
+
+    Parameters
+    ----------
+    xp, s, phi
+        Perturbed vertex positions ``(num_vertices, 2)``, final signs and signed distances
+        ``(num_vertices,)``.
+    edges
+        Positive edges and incidence counts (:func:`~dolfinx_universal.pipeline.gamma_h`).
+    c2v, c2f
+        Cell -> vertex and cell -> facet connectivity of the background ``(num_cells, 3)``.
+    f2c_offsets, f2c
+        Facet -> cell adjacency list (offsets ``(num_facets + 1,)`` and cells).
+    num_owned_vertices
+        Number of owned vertices (the first ones).
+
+    Returns
+    -------
+    problems
+        This rank's problems.
+    theta_max
+        The largest conditioning angle (radians, 0 without positively cut cells).
+    """
+    pc_owned, u, v, w = edges.cells, edges.u, edges.v, edges.w
+    problems = []
+    theta_max = 0.0
+    if len(pc_owned):
+        theta = conditioning_angle(xp, phi, u, v, w)
+        theta_max = float(theta.max())
+        bad = theta >= np.pi / 2 - 1e-12
+        if bad.any():
+            p = xp[proximal_vertex(xp, phi, u[bad], v[bad], w[bad])]
+            problems.append(
+                Problem(
+                    "conditioning angle of 90 degrees or more in {count} positively cut "
+                    "triangles near {where}: use a background mesh that is acute near the "
+                    "boundary (e.g. equilateral or graded_mesh)",
+                    p,
+                    int(bad.sum()),
+                )
+            )
+        # The positive edge is the facet opposite the inside vertex.
+        k = np.argmin(s[c2v[pc_owned]], axis=1)
+        f = c2f[pc_owned, k]
+        off = f2c_offsets
+        ncell = off[f + 1] - off[f]
+        lone = ncell == 1
+        if lone.any():
+            problems.append(
+                Problem(
+                    "the domain reaches the boundary of the background mesh near {where}: "
+                    "enlarge the background",
+                    0.5 * (xp[u[lone]] + xp[v[lone]]),
+                    int(lone.sum()),
+                    refinable=False,
+                )
+            )
+        two = np.flatnonzero(ncell == 2)
+        c0, c1 = f2c[off[f[two]]], f2c[off[f[two]] + 1]
+        other = np.where(c0 == pc_owned[two], c1, c0)
+        shared = two[edges.kept[other]]
+        if len(shared):
+            problems.append(
+                Problem(
+                    "Gamma crosses both triangles beside the positive edge near {where} (a "
+                    "thin part of the domain or of its exterior): the background is too "
+                    "coarse there, refine near it",
+                    0.5 * (xp[u[shared]] + xp[v[shared]]),
+                    len(shared),
+                )
+            )
+    nvo = num_owned_vertices
+    count, in_kept = edges.count[:nvo], edges.in_kept[:nvo]
+    chain = (count > 0) & (count != 2)
+    lost = in_kept & (s[:nvo] > 0) & (count == 0)
+    for bad, text in (
+        (
+            chain,
+            "Gamma_h (the union of positive edges) is not a set of closed simple curves at "
+            "vertices {where}: the background is too coarse for the boundary's curvature "
+            "or for the gap between its parts there; refine near them",
+        ),
+        (
+            lost,
+            "vertices outside the domain at {where} belong to kept triangles but to no "
+            "positive edge, so they would not be snapped: Gamma is under-resolved there; "
+            "refine the background near them",
+        ),
+    ):
+        if bad.any():
+            problems.append(Problem(text, xp[:nvo][bad], int(bad.sum())))
+    return problems, theta_max
+
+
+def containment_problems(
+    background: dmesh.Mesh, boundary: Boundary, cells: npt.NDArray[np.int32], comm: MPI.Comm
+) -> list[Problem]:
+    """Points of Gamma that lie in none of ``cells`` of the background (collective).
+
+    Parameters
+    ----------
+    background
+        The background mesh.
+    boundary
+        The domain (sampled).
+    cells
+        Background cells to search (those near Gamma) ``(m,)``.
+    comm
+        Communicator of the mesh.
+
+    Returns
+    -------
+    The problem on rank 0 when samples of Gamma are in no cell of any rank, else empty.
+    """
+    pts = collective_call(comm, "sampling the boundary", boundary.sample, 512)
+    pts3 = np.zeros((len(pts), 3))
+    pts3[:, :2] = pts
+    tree = dgeometry.bb_tree(background, 2, entities=cells.astype(np.int32))
+    cand = dgeometry.compute_collisions_points(tree, pts3)
+    hits = dgeometry.compute_colliding_cells(background, cand, pts3)
+    found = (np.diff(hits.offsets) > 0).astype(np.int32)
+    found = comm.allreduce(found, op=MPI.SUM) if comm.size > 1 else found
+    missing = pts[found == 0]
+    if len(missing) and comm.rank == 0:
+        return [
+            Problem(
+                "the immersed boundary leaves the background mesh near {where}: enlarge the "
+                "background so that it contains the domain's boundary",
+                missing,
+                len(missing),
+                refinable=False,
+            )
+        ]
+    return []
+
+
+def conforming_problems(
+    x: Float,
+    y: Float,
+    moved: Bool,
+    cells: Int,
+    in_kept: Bool,
+    outer_vertices: Int,
+) -> list[Problem]:
+    """Local problems with the conforming triangles: inversion, degeneracy, moved outer boundary.
+
+    Parameters
+    ----------
+    x, y
+        Background vertex positions and their images ``M_h(x)`` ``(num_vertices, 2)``.
+    moved
+        Vertices whose image differs from their position ``(num_vertices,)``.
+    cells
+        Kept triangles that may have moved (those near Gamma) ``(m, 3)``.
+    in_kept
+        Vertices of kept triangles near Gamma ``(num_vertices,)``.
+    outer_vertices
+        Vertices on the boundary of the background ``(k,)``.
+
+    Returns
+    -------
+    This rank's problems.
+    """
+    problems = []
+    cells = cells[moved[cells].any(axis=1)]  # unmoved triangles keep their shape
+    a0, a1 = signed_areas(x, cells), signed_areas(y, cells)
+    d2 = cell_diameters(x, cells) ** 2
+    inverted = (np.sign(a1) != np.sign(a0)) | (np.abs(a1) <= 1e-10 * d2)
+    if inverted.any():
+        centre = y[cells[inverted]].mean(axis=1)
+        problems.append(
+            Problem(
+                "{count} conforming triangles would be inverted or degenerate near {where}: "
+                "the background is too coarse or not acute there; refine near those points "
+                "or use an acute (e.g. equilateral) background",
+                centre,
+                int(inverted.sum()),
+            )
+        )
+    ev = outer_vertices
+    shifted = ev[in_kept[ev] & moved[ev]]
+    if len(shifted):
+        problems.append(
+            Problem(
+                "the boundary of the background mesh would move at {where}: Gamma comes "
+                "within R_r of it there; enlarge the background or reduce R_r",
+                x[shifted],
+                len(shifted),
+                refinable=False,
+            )
+        )
+    return problems
 
 
 def _loops(gids: npt.NDArray[np.int64]) -> tuple[int, npt.NDArray[np.int64]]:
@@ -76,7 +317,10 @@ def gamma_h_topology(
         Loops of Gamma_h and connected pieces of the kept region (every rank).
     """
     data = comm.gather((edges_global, pu, pv, pw), root=0)
-    result = _topology(data, samples, far_kept) if comm.rank == 0 else ([], 0, 0)
+    result: tuple[list[Problem], int, int] = ([], 0, 0)
+    if comm.rank == 0:
+        assert data is not None  # gather returns the list on the root
+        result = _topology(data, samples, far_kept)
     counts = comm.bcast(result[1:], root=0)
     return result[0], counts[0], counts[1]
 
@@ -90,14 +334,18 @@ def _topology(data: list, samples: CurveSamples, far_kept: bool) -> tuple[list[P
     ncurves = samples.num_curves
     problems: list[Problem] = []
     if len(g) == 0:
-        return [
-            Problem(
-                f"Gamma_h is empty: no positive edge follows any of the {ncurves} curves of "
-                "the boundary near {where}; the background is too coarse for the domain "
-                "there; refine near those points",
-                samples.points,
-            )
-        ], 0, int(far_kept)
+        return (
+            [
+                Problem(
+                    f"Gamma_h is empty: no positive edge follows any of the {ncurves} curves of "
+                    "the boundary near {where}; the background is too coarse for the domain "
+                    "there; refine near those points",
+                    samples.points,
+                )
+            ],
+            0,
+            int(far_kept),
+        )
     from scipy.spatial import cKDTree
 
     nloops, loop = _loops(g)

@@ -2,13 +2,18 @@
 
 Pure numpy on process-local arrays: ``x`` are vertex coordinates ``(num_vertices, 2)``,
 ``cells`` vertex indices ``(num_cells, 3)``, ``s`` vertex signs (-1 inside, +1 outside or on
-Gamma), ``phi`` signed distances. Only the signs at vertices are used to classify (SPEC §2).
+Gamma), ``phi`` signed distances. Only the signs at vertices are used to classify.
+The triangle geometry (``signed_areas``, ``cell_diameters``, ``interior_angles``) lives in
+:mod:`dolfinx_universal._geometry` and is re-exported here.
 """
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
-import numpy.typing as npt
+
+from ._geometry import Bool, Float, Int, cell_diameters, interior_angles, signed_areas
 
 __all__ = [
     "cell_diameters",
@@ -22,10 +27,6 @@ __all__ = [
     "signed_areas",
     "straight_map",
 ]
-
-Float = npt.NDArray[np.float64]
-Int = npt.NDArray[np.int32] | npt.NDArray[np.int64]
-Bool = npt.NDArray[np.bool_]
 
 
 def positively_cut(s: Float, cells: Int) -> Bool:
@@ -64,26 +65,10 @@ def positive_edges(s: Float, cells: Int) -> tuple[Int, Int, Int]:
     return u, v, w
 
 
-def signed_areas(x: Float, cells: Int) -> Float:
-    """Signed areas of triangles, positive for counter-clockwise vertices, shape ``(m,)``."""
-    p = x[cells]
-    d1, d2 = p[:, 1, :2] - p[:, 0, :2], p[:, 2, :2] - p[:, 0, :2]
-    return 0.5 * (d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
-
-
-def cell_diameters(x: Float, cells: Int) -> Float:
-    """Longest edge of each triangle, shape ``(m,)``."""
-    p = x[cells][:, :, :2]
-    return np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2).max(axis=1)
-
-
-def interior_angles(x: Float, cells: Int) -> Float:
-    """Interior angle (radians) at each local vertex of each triangle, shape ``(m, 3)``."""
-    p = x[cells][:, :, :2]
-    a = np.roll(p, -1, axis=1) - p  # to the next vertex
-    b = np.roll(p, 1, axis=1) - p  # to the previous vertex
-    cross = np.abs(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0])
-    return np.arctan2(cross, (a * b).sum(axis=2))
+def _stack_columns(u: Int, v: Int, w: Int) -> Int:
+    """``(m, 3)`` array of the columns ``u, v, w``."""
+    # numpy's stubs lose the dtype of a union of integer arrays; the result is an integer array
+    return cast(Int, np.column_stack([u, v, w]))
 
 
 def proximal_vertex(x: Float, phi: Float, u: Int, v: Int, w: Int) -> Int:
@@ -103,7 +88,7 @@ def proximal_vertex(x: Float, phi: Float, u: Int, v: Int, w: Int) -> Int:
     -------
     Vertex index of the proximal vertex of each cell, ``(m,)``.
     """
-    ang = interior_angles(x, np.column_stack([u, v, w]))
+    ang = interior_angles(x, _stack_columns(u, v, w))
     du, dv = np.abs(phi[u]), np.abs(phi[v])
     scale = np.linalg.norm(x[u, :2] - x[v, :2], axis=1)
     tie = np.abs(du - dv) <= 1e-12 * scale
@@ -114,21 +99,19 @@ def proximal_vertex(x: Float, phi: Float, u: Int, v: Int, w: Int) -> Int:
 def conditioning_angle(x: Float, phi: Float, u: Int, v: Int, w: Int) -> Float:
     """Conditioning angle (radians) of positively cut cells: the angle at the proximal vertex.
 
-    It must be strictly below 90 degrees (SPEC §2, §6).
+    It must be strictly below 90 degrees.
 
     Returns
     -------
     Angles, shape ``(m,)``.
     """
-    ang = interior_angles(x, np.column_stack([u, v, w]))
+    ang = interior_angles(x, _stack_columns(u, v, w))
     p = proximal_vertex(x, phi, u, v, w)
     return np.where(p == u, ang[:, 0], ang[:, 1])
 
 
-def perturbation_candidates(
-    x: Float, phi: Float, s: Float, cells: Int, eta: float
-) -> Int:
-    """Inside vertices to relocate onto Gamma by the quality perturbation (SPEC §3).
+def perturbation_candidates(x: Float, phi: Float, s: Float, cells: Int, eta: float) -> Int:
+    """Inside vertices to relocate onto Gamma by the quality perturbation (parameter eta).
 
     For each positively cut cell with vertices ordered ``phi(a) >= phi(b) >= phi(c)``, ``c``
     is selected when ``phi(b) - phi(c) < eta * h_K`` (``h_K`` the cell's diameter).
@@ -146,7 +129,8 @@ def perturbation_candidates(
     rows = np.arange(len(pc))[:, None]
     b, c = pc[rows, order][:, 1], pc[rows, order][:, 2]
     hit = phi[b] - phi[c] < eta * cell_diameters(x, pc)
-    return np.unique(c[hit & (s[c] < 0)])
+    # numpy's stubs lose the dtype of a union of integer arrays; unique keeps c's dtype
+    return cast(Int, np.unique(c[hit & (s[c] < 0)]))
 
 
 def straight_map(
@@ -159,7 +143,7 @@ def straight_map(
     R_r: Float,
     alpha: float,
 ) -> Float:
-    """The straight-edged map ``M_h`` at vertices (SPEC §3).
+    """The straight-edged map ``M_h`` at vertices.
 
     ``M_h(x) = pi(x)`` on vertices of positive edges; otherwise
     ``M_h(x) = x - alpha h max(0, 1 + phi/R_r) N(pi(x))`` for vertices inside within

@@ -11,35 +11,38 @@ from mpi4py import MPI
 
 import numpy as np
 import numpy.typing as npt
-from dolfinx import geometry as dgeometry
 from dolfinx import mesh as dmesh
 
-from .checks import gamma_h_topology, low_quality_cells
-from .classify import (
-    cell_diameters,
-    conditioning_angle,
-    kept_cells,
-    perturbation_candidates,
-    positive_edges,
-    positively_cut,
-    proximal_vertex,
-    signed_areas,
-    straight_map,
+from ._geometry import Bool, Float, Int
+from .background import GRADATION, vertex_sizes
+from .checks import (
+    classification_problems,
+    conforming_problems,
+    containment_problems,
+    gamma_h_topology,
+    low_quality_cells,
+    require_kept,
 )
-from .validation import (
-    MeshingError,
-    Problem,
-    collective_call,
-    raise_collective,
-    vertex_reduce,
-    where,
-)
+from .classify import positively_cut
+from .pipeline import band_cells, classify_near, gamma_h, map_band, perturb, project_band
+from .validation import MeshingError, Problem, collective_call, raise_collective
 
 if TYPE_CHECKING:
     from .boundaries import Boundary
+    from .pipeline import PositiveEdges
     from .sizing import CurveSamples
 
-__all__ = ["IMMERSED", "OUTER", "ConformingMesh", "StraightMap", "UniversalMesh", "conform"]
+__all__ = [
+    "GRADATION",
+    "IMMERSED",
+    "OUTER",
+    "ConformingMesh",
+    "StraightMap",
+    "UniversalMesh",
+    "conform",
+]
+
+_vertex_sizes = vertex_sizes  # the name before the size field moved to background.py
 
 IMMERSED = 1
 """Facet tag of the immersed boundary (the snapped positive edges)."""
@@ -129,7 +132,9 @@ def _check_background(msh: dmesh.Mesh) -> None:
         )
 
 
-def _local_arrays(msh: dmesh.Mesh):
+def _local_arrays(
+    msh: dmesh.Mesh,
+) -> tuple[Float, npt.NDArray[np.int32], npt.NDArray[np.int32]]:
     """Vertex coordinates, cells and vertex -> node map of a degree-1 mesh (process-local)."""
     topo = msh.topology
     topo.create_connectivity(2, 0)
@@ -143,106 +148,66 @@ def _local_arrays(msh: dmesh.Mesh):
     return msh.geometry.x[v2n, :2].copy(), c2v, v2n
 
 
-GRADATION = 0.2
-"""Lipschitz bound of the local size field used on graded backgrounds (``local_size``)."""
-
-
-def _vertex_sizes(imv, x, c2v, num_owned: int, local: bool, comm: MPI.Comm):
-    """Mesh size at each vertex: the global max diameter, or a smoothed local size.
-
-    The local size starts as the largest diameter of the vertex's cells and is then raised
-    to the smallest field ``h_s >= h`` with ``|h_s(a) - h_s(b)| <= GRADATION |a - b|`` along
-    edges (a max-plus relaxation over the mesh graph). The relaxation ``alpha h (1 + phi/R_r)``
-    then has a small tangential gradient across the level changes of a graded background,
-    where the raw cell size jumps by a factor 2 (which folds triangles there).
-    """
-    diam = cell_diameters(x, c2v[:num_owned])
-    if not local:
-        hmax = comm.allreduce(float(diam.max()) if len(diam) else 0.0, op=MPI.MAX)
-        return np.full(len(x), hmax)
-    hv = np.zeros(len(x))
-    np.maximum.at(hv, c2v[:num_owned].ravel(), np.repeat(diam, 3))
-    hv = vertex_reduce(imv, hv, "max")
-    edges = np.unique(np.sort(np.concatenate([c2v[:, [0, 1]], c2v[:, [1, 2]], c2v[:, [2, 0]]]),
-                              axis=1), axis=0)
-    a, b = edges[:, 0], edges[:, 1]
-    drop = GRADATION * np.linalg.norm(x[a] - x[b], axis=1)
-    while True:
-        new = hv.copy()
-        np.maximum.at(new, a, hv[b] - drop)
-        np.maximum.at(new, b, hv[a] - drop)
-        new = vertex_reduce(imv, new, "max")
-        change = float(np.max(new - hv)) if len(hv) else 0.0
-        hv = new
-        if comm.allreduce(change, op=MPI.MAX) <= 1e-12 * (float(hv.max()) if len(hv) else 1.0):
-            return hv
-
-
-def _incidence(imv, vertices: npt.NDArray, n: int) -> npt.NDArray[np.float64]:
-    """Global number of times each local vertex appears in ``vertices`` (over all ranks)."""
-    count = np.bincount(np.asarray(vertices).ravel(), minlength=n).astype(np.float64)
-    return vertex_reduce(imv, count, "sum")
-
-
-def _check_containment(background, boundary, cells, comm) -> list[str]:
-    """Points of Gamma that lie in no background cell (collective)."""
-    pts = collective_call(comm, "sampling the boundary", boundary.sample, 512)
-    pts3 = np.zeros((len(pts), 3))
-    pts3[:, :2] = pts
-    tree = dgeometry.bb_tree(background, 2, entities=cells.astype(np.int32))
-    cand = dgeometry.compute_collisions_points(tree, pts3)
-    hits = dgeometry.compute_colliding_cells(background, cand, pts3)
-    found = (np.diff(hits.offsets) > 0).astype(np.int32)
-    found = comm.allreduce(found, op=MPI.SUM) if comm.size > 1 else found
-    missing = pts[found == 0]
-    if len(missing) and comm.rank == 0:
-        return [Problem(
-            "the immersed boundary leaves the background mesh near {where}: enlarge the "
-            "background so that it contains the domain's boundary", missing, len(missing),
-            refinable=False,
-        )]
-    return []
-
-
 @dataclass
 class StraightMap:
     """Classification of the background vertices against a domain and their images under M_h.
 
     Arrays are indexed by process-local background vertices (owned and ghost) or cells.
+
+    Attributes
+    ----------
+    sign
+        Final vertex signs (after the eta perturbation), ``(num_vertices,)``.
+    phi
+        Signed distances; ``+-inf`` outside the band near Gamma, ``(num_vertices,)``.
+    closest
+        Closest points ``pi(x)`` (NaN outside the band), ``(num_vertices, 2)``.
+    x, y
+        Background positions after the eta perturbation and their images ``M_h(x)``,
+        ``(num_vertices, 2)``.
+    on_positive_edge
+        Vertices of positive edges (snapped onto Gamma), ``(num_vertices,)``.
+    kept
+        Cells of ``T_h^sub`` (owned and ghost cells), ``(num_cells,)``.
+    moved
+        Vertices whose image differs from their original position, ``(num_vertices,)``.
+    near_cells
+        Cells (owned and ghost) with a vertex within ``R_r`` of Gamma: every moved or
+        positively cut cell is among them.
+    num_relocated
+        Vertices relocated by the eta perturbation (global count).
+    timings
+        Wall-clock seconds of the stages (this rank).
+    max_conditioning_angle
+        Largest conditioning angle in degrees (global).
+    moved_angle_range
+        Smallest and largest angle (degrees, global) of the kept triangles that moved.
+    num_loops
+        Closed loops of Gamma_h (one per curve of Gamma).
+    num_pieces
+        Connected pieces of the kept triangles (as many as the domain has).
     """
 
-    sign: npt.NDArray[np.float64]
-    """Final vertex signs (after the eta perturbation), ``(num_vertices,)``."""
-    phi: npt.NDArray[np.float64]
-    """Signed distances; ``+-inf`` outside the band near Gamma, ``(num_vertices,)``."""
-    closest: npt.NDArray[np.float64]
-    """Closest points ``pi(x)`` (NaN outside the band), ``(num_vertices, 2)``."""
-    x: npt.NDArray[np.float64]
-    """Background positions after the eta perturbation, ``(num_vertices, 2)``."""
-    y: npt.NDArray[np.float64]
-    """Images ``M_h(x)``, ``(num_vertices, 2)``."""
-    on_positive_edge: npt.NDArray[np.bool_]
-    kept: npt.NDArray[np.bool_]
-    """Cells of ``T_h^sub`` (owned and ghost cells), ``(num_cells,)``."""
-    moved: npt.NDArray[np.bool_]
-    """Vertices whose image differs from their original position, ``(num_vertices,)``."""
+    sign: Float
+    phi: Float
+    closest: Float
+    x: Float
+    y: Float
+    on_positive_edge: Bool
+    kept: Bool
+    moved: Bool
     near_cells: npt.NDArray[np.int32]
-    """Cells (owned and ghost) with a vertex within ``R_r`` of Gamma: every moved or
-    positively cut cell is among them."""
     num_relocated: int
     timings: dict[str, float]
     max_conditioning_angle: float = 0.0
-    """Largest conditioning angle in degrees (global)."""
     moved_angle_range: tuple[float, float] = (180.0, 0.0)
-    """Smallest and largest angle (degrees, global) of the kept triangles that moved."""
     num_loops: int = 0
-    """Closed loops of Gamma_h (one per curve of Gamma)."""
     num_pieces: int = 0
-    """Connected pieces of the kept triangles (as many as the domain has)."""
 
 
 class UniversalMesh:
-    """A background mesh prepared once to be conformed to any number of domains (SPEC §5).
+    """A background mesh prepared once to be conformed to any number of domains
+    (Rangarajan & Lew 2014).
 
     Everything that depends only on the background (vertex arrays, connectivities, mesh
     sizes, parameters) is computed here; :meth:`conform` then costs a classification, the
@@ -284,7 +249,7 @@ class UniversalMesh:
         local_size: bool = False,
         min_angle: float = 10.0,
         on_low_quality: str = "warn",
-    ):
+    ) -> None:
         _check_background(background)
         eta, min_angle = float(eta), float(min_angle)
         if not 0.0 <= eta < 1.0:  # also rejects NaN
@@ -305,10 +270,19 @@ class UniversalMesh:
         nv = len(x)
         bad = ~np.isfinite(x).all(axis=1)
         raise_collective(
-            comm, [f"background mesh has NaN/inf coordinates at {where(x[bad])}"] if bad.any()
-            else []
+            comm,
+            [
+                Problem(
+                    "background mesh has NaN/inf coordinates at {count} vertices, e.g. {where}",
+                    x[bad],
+                    int(bad.sum()),
+                    refinable=False,
+                )
+            ]
+            if bad.any()
+            else [],
         )
-        self.h = _vertex_sizes(self._imv, x, c2v, self._nco, local_size, comm)
+        self.h = vertex_sizes(self._imv, x, c2v, self._nco, local_size, comm)
         self.R_r = relaxation_factor * self.h if R_r is None else np.full(nv, float(R_r))
         ratio = self.h / np.maximum(self.R_r, np.finfo(float).tiny)
         worst = comm.allreduce(float(ratio.max()) if nv else 0.0, op=MPI.MAX)
@@ -340,131 +314,89 @@ class UniversalMesh:
             On every rank, when the domain cannot be meshed on this background; the message
             says where and what to do.
         """
-        comm, imv, nco = self.comm, self._imv, self._nco
-        x, c2v = self._x, self._c2v
-        nv = len(x)
+        comm, imv, x, c2v = self.comm, self._imv, self._x, self._c2v
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
-        # Classification. Gamma lies in its bounding box, so every vertex outside the box
-        # (enlarged by the band width) has the sign of the far field: only the vertices in
-        # the box are tested, and only those within R_r of Gamma get projected.
-        rmax = float(self.R_r.max()) if nv else 0.0
-        box = np.asarray(
-            collective_call(comm, "the bounding box", boundary.bounding_box), dtype=float
-        )
-        pad = rmax + 2.0 * (float(self.h.max()) if nv else 0.0)
-        lo, hi = box[0] - pad, box[1] + pad
-        far = np.asarray(
-            collective_call(comm, "the sign test", boundary.sign, (hi + pad)[None]), dtype=float
-        )[0]
-        cand = np.flatnonzero(
-            (x[:, 0] >= lo[0]) & (x[:, 0] <= hi[0]) & (x[:, 1] >= lo[1]) & (x[:, 1] <= hi[1])
-        )
-        s = np.full(nv, far)
-        s[cand] = collective_call(comm, "the sign test", boundary.sign, x[cand])
-        near_flag = np.asarray(
-            collective_call(comm, "the band test", boundary.near, x[cand], rmax), dtype=bool
-        )
-        band_idx = cand[near_flag]
+        s, band = classify_near(comm, boundary, x, self.h, self.R_r)
         timings["classify"] = time.perf_counter() - t0
-
         t1 = time.perf_counter()
-        phi = np.where(s < 0, -np.inf, np.inf)
-        closest = np.full((nv, 2), np.nan)
-        normal = np.full((nv, 2), np.nan)
-        xb = x[band_idx]
-        phi_b, y_b = collective_call(comm, "closest-point projection", boundary.project, xb)
-        bad = ~(np.isfinite(phi_b) & np.isfinite(y_b).all(axis=1))
+        s, phi, closest, normal = project_band(comm, boundary, x, s, band, self.h)
+        timings["project"] = time.perf_counter() - t1
+        t2 = time.perf_counter()
+        near_all, near_cells = band_cells(self.background.topology, band, self._nco)
+        xp, phi, s, num_relocated = perturb(
+            comm, imv, x, phi, s, closest, c2v[near_cells], self.eta
+        )
+        pe = gamma_h(imv, s, c2v, near_cells)
+        require_kept(comm, pe.kept[: self._nco], boundary)
+        max_theta, num_loops, num_pieces = self._check_gamma_h(
+            boundary, xp, s, phi, pe, band, near_cells
+        )
+        y, moved = map_band(
+            x, xp, phi, closest, normal, pe.on_edge, self.h, self.R_r, self.alpha, band
+        )
         raise_collective(
             comm,
-            [Problem("closest-point projection returned NaN/inf for vertices at {where}",
-                     xb[bad], int(bad.sum()), refinable=False)]
-            if bad.any()
-            else [],
+            conforming_problems(x, y, moved, c2v[pe.near_kept], pe.in_kept, self._outer_vertices),
         )
-        phi[band_idx], closest[band_idx] = phi_b, y_b
-        # Points on Gamma count as outside (SPEC §2). A vertex on Gamma up to rounding that
-        # the sign test put inside would be relaxed inwards while its neighbours snap onto
-        # it; treat it as on Gamma.
-        on_gamma = band_idx[(phi_b <= 0) & (phi_b > -1e-10 * self.h[band_idx])]
-        s[on_gamma], phi[on_gamma] = 1.0, 0.0
-        normal[band_idx] = collective_call(comm, "the normal", boundary.normal, y_b)
-        timings["project"] = time.perf_counter() - t1
+        angle_range = self._check_quality(y, moved, c2v[pe.near_kept])
+        timings["map"] = time.perf_counter() - t2
+        return StraightMap(
+            sign=s, phi=phi, closest=closest, x=xp, y=y, on_positive_edge=pe.on_edge,
+            kept=pe.kept, moved=moved, near_cells=near_all.astype(np.int32),
+            num_relocated=num_relocated, timings=timings,
+            max_conditioning_angle=float(np.degrees(max_theta)), moved_angle_range=angle_range,
+            num_loops=num_loops, num_pieces=num_pieces,
+        )  # fmt: skip
 
-        # Quality perturbation: relocate inside vertices too close to Gamma, to a fixed point.
-        t2 = time.perf_counter()
-        near_all = dmesh.compute_incident_entities(  # the cells at the band
-            self.background.topology, band_idx.astype(np.int32), 0, 2
-        )
-        near_cells = near_all[near_all < nco]
-        owned = c2v[:nco]
-        near = owned[near_cells]
-        xp = x.copy()
-        relocated = np.zeros(nv, dtype=bool)
-        while self.eta > 0:
-            flag = np.zeros(nv)
-            flag[perturbation_candidates(xp, phi, s, near, self.eta)] = 1.0
-            new = (vertex_reduce(imv, flag, "sum") > 0) & ~relocated
-            if comm.allreduce(int(new[: imv.size_local].sum())) == 0:
-                break
-            xp[new], phi[new], s[new] = closest[new], 0.0, 1.0
-            relocated |= new
-        num_relocated = comm.allreduce(int(relocated[: imv.size_local].sum()))
+    def _check_gamma_h(
+        self,
+        boundary: Boundary,
+        xp: npt.NDArray[np.float64],
+        s: npt.NDArray[np.float64],
+        phi: npt.NDArray[np.float64],
+        pe: PositiveEdges,
+        band: Int,
+        near_cells: npt.NDArray[np.int32],
+    ) -> tuple[float, int, int]:
+        """Raise for a bad classification, Gamma outside the background or a wrong Gamma_h
+        topology (the conditions of the method; collective).
 
-        # Positive edges, Gamma_h, and the checks of SPEC §6. A vertex outside the domain in
-        # a kept triangle is next to an inside vertex, hence in the band: the incidence
-        # counts near the band are all that the checks need.
-        pc_owned = near_cells[positively_cut(s, near)]
-        u, v, w = positive_edges(s, owned[pc_owned])
-        pe_count = _incidence(imv, np.concatenate([u, v]), nv)
-        on_pe = pe_count > 0
-        kept = kept_cells(s, c2v)
-        near_kept = near_cells[kept[near_cells]]
-        in_kept = _incidence(imv, owned[near_kept], nv) > 0
-        if comm.allreduce(int(np.count_nonzero(kept[:nco]))) == 0:
-            raise MeshingError(
-                "no background vertex lies inside the domain: the domain is outside the "
-                "background mesh or smaller than its triangles; move or refine the background",
-                collective_call(comm, "sampling the boundary", boundary.sample, 64),
-            )
-        problems, theta = self._check_classification(
-            xp, s, phi, pc_owned, u, v, w, pe_count, in_kept, kept
+        Returns
+        -------
+        max_theta
+            The largest conditioning angle (radians, global).
+        num_loops, num_pieces
+            Loops of Gamma_h and connected pieces of the kept cells.
+        """
+        comm, imv = self.comm, self._imv
+        # Containment first: a domain leaving the background also breaks Gamma_h there, and
+        # "refine" would point the wrong way.
+        cells = near_cells.astype(np.int32)
+        raise_collective(comm, containment_problems(self.background, boundary, cells, comm))
+        problems, theta = classification_problems(
+            xp, s, phi, pe, self._c2v, self._c2f, self._f2c_offsets, self._f2c, imv.size_local
         )
         raise_collective(comm, problems)
-        near_cells = near_cells.astype(np.int32)
-        raise_collective(comm, _check_containment(self.background, boundary, near_cells, comm))
         max_theta = comm.allreduce(theta, op=MPI.MAX)
-        ev = self._outer_vertices
-        far_kept = comm.allreduce(bool(np.any(s[ev] < 0)), op=MPI.LOR)
-        samples = self._curve_samples(boundary, band_idx)
+        far_kept = comm.allreduce(bool(np.any(s[self._outer_vertices] < 0)), op=MPI.LOR)
+        samples = self._curve_samples(boundary, band)
+        u, v, w = pe.u, pe.v, pe.w
         topo_problems, num_loops, num_pieces = gamma_h_topology(
             comm, imv.local_to_global(np.concatenate([u, v]).astype(np.int32)).reshape(2, -1).T,
             xp[u], xp[v], xp[w], samples, far_kept,
-        )
+        )  # fmt: skip
         raise_collective(comm, topo_problems)
+        return max_theta, num_loops, num_pieces
 
-        # M_h moves band vertices only.
-        y = xp.copy()
-        y[band_idx] = straight_map(
-            xp[band_idx], phi[band_idx], closest[band_idx], normal[band_idx], on_pe[band_idx],
-            self.h[band_idx], self.R_r[band_idx], self.alpha,
-        )
-        moved = np.zeros(nv, dtype=bool)
-        moved[band_idx] = np.any(y[band_idx] != x[band_idx], axis=1)
-        problems = self._check_output(y, moved, near_kept, in_kept)
-        raise_collective(comm, problems)
-        moved_kept = c2v[near_kept]
-        moved_kept = moved_kept[moved[moved_kept].any(axis=1)]
-        low, lo, hi = low_quality_cells(y, moved_kept, self.min_angle)
+    def _check_quality(
+        self, y: npt.NDArray[np.float64], moved: npt.NDArray[np.bool_], cells: npt.NDArray[np.int32]
+    ) -> tuple[float, float]:
+        """Report the moved ``cells`` below the quality floor; their global angle range."""
+        moved_cells = cells[moved[cells].any(axis=1)]
+        low, lo, hi = low_quality_cells(y, moved_cells, self.min_angle)
         self._report_quality(low)
-        timings["map"] = time.perf_counter() - t2
-        return StraightMap(
-            sign=s, phi=phi, closest=closest, x=xp, y=y, on_positive_edge=on_pe, kept=kept,
-            moved=moved, near_cells=near_all.astype(np.int32), num_relocated=num_relocated,
-            timings=timings, max_conditioning_angle=float(np.degrees(max_theta)),
-            moved_angle_range=(comm.allreduce(lo, op=MPI.MIN), comm.allreduce(hi, op=MPI.MAX)),
-            num_loops=num_loops, num_pieces=num_pieces,
-        )
+        return self.comm.allreduce(lo, op=MPI.MIN), self.comm.allreduce(hi, op=MPI.MAX)
 
     def _curve_samples(self, boundary: Boundary, band_idx: npt.NDArray) -> CurveSamples:
         """Dense labelled samples of Gamma, spaced well below the mesh size near it (cached
@@ -556,106 +488,13 @@ class UniversalMesh:
             num_pieces=sm.num_pieces,
         )
 
-    def _check_classification(
-        self, xp, s, phi, pc_owned, u, v, w, pe_count, in_kept, kept
-    ) -> list[str]:
-        """Local problems with the classification (SPEC §2, §6), and the largest
-        conditioning angle (radians, 0 without positively cut cells)."""
-        problems = []
-        theta_max = 0.0
-        if len(pc_owned):
-            theta = conditioning_angle(xp, phi, u, v, w)
-            theta_max = float(theta.max())
-            bad = theta >= np.pi / 2 - 1e-12
-            if bad.any():
-                p = xp[proximal_vertex(xp, phi, u[bad], v[bad], w[bad])]
-                problems.append(Problem(
-                    "conditioning angle of 90 degrees or more in {count} positively cut "
-                    "triangles near {where}: use a background mesh that is acute near the "
-                    "boundary (e.g. equilateral or graded_mesh)", p, int(bad.sum()),
-                ))
-            # The positive edge is the facet opposite the inside vertex.
-            k = np.argmin(s[self._c2v[pc_owned]], axis=1)
-            f = self._c2f[pc_owned, k]
-            off = self._f2c_offsets
-            ncell = off[f + 1] - off[f]
-            lone = ncell == 1
-            if lone.any():
-                problems.append(Problem(
-                    "the domain reaches the boundary of the background mesh near {where}: "
-                    "enlarge the background", 0.5 * (xp[u[lone]] + xp[v[lone]]),
-                    int(lone.sum()), refinable=False,
-                ))
-            two = np.flatnonzero(ncell == 2)
-            c0, c1 = self._f2c[off[f[two]]], self._f2c[off[f[two]] + 1]
-            other = np.where(c0 == pc_owned[two], c1, c0)
-            shared = two[kept[other]]
-            if len(shared):
-                problems.append(Problem(
-                    "Gamma crosses both triangles beside the positive edge near {where} (a "
-                    "thin part of the domain or of its exterior): the background is too "
-                    "coarse there, refine near it", 0.5 * (xp[u[shared]] + xp[v[shared]]),
-                    len(shared),
-                ))
-        nvo = self._imv.size_local
-        chain = (pe_count[:nvo] > 0) & (pe_count[:nvo] != 2)
-        if chain.any():
-            problems.append(Problem(
-                "Gamma_h (the union of positive edges) is not a set of closed simple curves at "
-                "vertices {where}: the background is too coarse for the boundary's curvature "
-                "or for the gap between its parts there; refine near them", xp[:nvo][chain],
-                int(chain.sum()),
-            ))
-        lost = in_kept[:nvo] & (s[:nvo] > 0) & (pe_count[:nvo] == 0)
-        if lost.any():
-            problems.append(Problem(
-                "vertices outside the domain at {where} belong to kept triangles but to no "
-                "positive edge, so they would not be snapped: Gamma is under-resolved there; "
-                "refine the background near them", xp[:nvo][lost], int(lost.sum()),
-            ))
-        return problems, theta_max
-
-    def _check_output(self, y, moved, kc, in_kept) -> list[str]:
-        """Local problems with the conforming triangles: inversion, degeneracy, moved outer
-        boundary."""
-        problems = []
-        x = self._x
-        cells = self._c2v[kc]
-        cells = cells[moved[cells].any(axis=1)]  # unmoved triangles keep their shape
-        a0, a1 = signed_areas(x, cells), signed_areas(y, cells)
-        d2 = cell_diameters(x, cells) ** 2
-        inverted = (np.sign(a1) != np.sign(a0)) | (np.abs(a1) <= 1e-10 * d2)
-        if inverted.any():
-            centre = y[cells[inverted]].mean(axis=1)
-            problems.append(Problem(
-                "{count} conforming triangles would be inverted or degenerate near {where}: "
-                "the background is too coarse or not acute there; refine near those points "
-                "or use an acute (e.g. equilateral) background", centre, int(inverted.sum()),
-            ))
-        ev = self._outer_vertices
-        shifted = ev[in_kept[ev] & moved[ev]]
-        if len(shifted):
-            problems.append(Problem(
-                "the boundary of the background mesh would move at {where}: Gamma comes "
-                "within R_r of it there; enlarge the background or reduce R_r", x[shifted],
-                len(shifted), refinable=False,
-            ))
-        return problems
-
 
 def conform(
-    background: dmesh.Mesh,
-    boundary: Boundary,
-    *,
-    R_r: float | None = None,
-    alpha: float | None = None,
-    eta: float = 0.2,
-    relaxation_factor: float = 3.0,
-    local_size: bool = False,
-    min_angle: float = 10.0,
-    on_low_quality: str = "warn",
-) -> ConformingMesh:
-    """Conform a background triangulation to the domain bounded by ``boundary`` (SPEC §2-3).
+    background: dmesh.Mesh, boundary: Boundary, *, R_r: float | None = None,
+    alpha: float | None = None, eta: float = 0.2, relaxation_factor: float = 3.0,
+    local_size: bool = False, min_angle: float = 10.0, on_low_quality: str = "warn",
+) -> ConformingMesh:  # fmt: skip
+    """Conform a background triangulation to the domain bounded by ``boundary``.
 
     Shorthand for ``UniversalMesh(background, ...).conform(boundary)``; use
     :class:`UniversalMesh` to conform one background to many domains.
@@ -663,12 +502,11 @@ def conform(
     Parameters
     ----------
     background
-        Degree-1 triangle mesh containing the closure of the domain, acute near Gamma;
-        distributed with shared-facet ghosts (see :mod:`dolfinx_universal.background`).
+        The background mesh, as in :class:`UniversalMesh`.
     boundary
         The domain (signs, closest points, normals).
     R_r, alpha, eta, relaxation_factor, local_size, min_angle, on_low_quality
-        See :class:`UniversalMesh`.
+        Options of :class:`UniversalMesh`.
 
     Returns
     -------
@@ -683,7 +521,5 @@ def conform(
     um = UniversalMesh(
         background, R_r=R_r, alpha=alpha, eta=eta, relaxation_factor=relaxation_factor,
         local_size=local_size, min_angle=min_angle, on_low_quality=on_low_quality,
-    )
+    )  # fmt: skip
     return um.conform(boundary)
-
-

@@ -10,6 +10,7 @@ import numpy as np
 import numpy.typing as npt
 from dolfinx import mesh as dmesh
 
+from ._geometry import cell_diameters, edge_lengths, interior_angles, signed_areas
 from .background import create_background_mesh
 
 __all__ = [
@@ -210,10 +211,10 @@ def _mask15() -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
     """Steiner points and triangles of the all-fine stencil: mask 0 in each quadrant."""
     bnd = _boundary_points(15) / 4.0
     pts = [bnd]
-    cells = []
+    blocks: list[npt.NDArray[np.int64]] = []
     for q in _CORNERS / 8.0:  # quadrant origins (0,0), (1/2,0), (1/2,1/2), (0,1/2)
         pts.append(q + 0.5 * _MASK0_POINTS)
-        cells.append(_MASK0_CELLS + len(bnd) + 12 * len(cells))
+        blocks.append(_MASK0_CELLS + len(bnd) + 12 * len(blocks))
     x = np.vstack(pts)
     key = np.round(x * 2**20).astype(np.int64)
     _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
@@ -221,7 +222,7 @@ def _mask15() -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
     order = np.argsort(first)  # unique points in order of first appearance
     rank = np.empty_like(order)
     rank[order] = np.arange(len(order))
-    cells = rank[inverse.ravel()][np.vstack(cells)]
+    cells = rank[inverse.ravel()][np.vstack(blocks)]
     steiner = x[np.sort(first)][len(bnd) :]
     return steiner, cells.astype(np.int64)
 
@@ -238,10 +239,10 @@ def _check_stencil(
     """Orient a stencil counter-clockwise and verify that it tiles the unit square acutely."""
     x = np.vstack([_boundary_points(mask) / 4.0, steiner])
     cells = np.asarray(cells, dtype=np.int64)
-    area = _signed_areas(x, cells)
+    area = signed_areas(x, cells)
     cells = np.where((area < 0)[:, None], cells[:, [0, 2, 1]], cells)
     area = np.abs(area)
-    angles = _angles(x, cells)
+    angles = np.degrees(interior_angles(x, cells))
     if (
         area.min() <= 0
         or abs(area.sum() - 1.0) > 1e-12
@@ -250,24 +251,6 @@ def _check_stencil(
     ):
         raise RuntimeError(f"invalid acute stencil for corner mask {mask}")  # pragma: no cover
     return x, cells
-
-
-def _signed_areas(x: npt.NDArray[np.float64], cells: npt.NDArray[np.int64]) -> np.ndarray:
-    p0, p1, p2 = x[cells[:, 0]], x[cells[:, 1]], x[cells[:, 2]]
-    u, v = p1 - p0, p2 - p0
-    return 0.5 * (u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0])
-
-
-def _angles(x: npt.NDArray[np.float64], cells: npt.NDArray[np.int64]) -> np.ndarray:
-    """Interior angles in degrees, ``(num_cells, 3)``; column k is the angle at vertex k."""
-    p = x[cells]
-    out = np.empty(cells.shape)
-    for k in range(3):
-        u = p[:, (k + 1) % 3] - p[:, k]
-        v = p[:, (k + 2) % 3] - p[:, k]
-        cross = u[:, 0] * v[:, 1] - u[:, 1] * v[:, 0]
-        out[:, k] = np.degrees(np.arctan2(np.abs(cross), np.einsum("ij,ij->i", u, v)))
-    return out
 
 
 def _build_stencils() -> list[tuple[npt.NDArray[np.float64], npt.NDArray[np.int64], int]]:
@@ -646,23 +629,17 @@ def local_size(x: npt.ArrayLike, cells: npt.ArrayLike) -> npt.NDArray[np.float64
     """
     x = np.asarray(x, dtype=np.float64)
     cells = np.asarray(cells, dtype=np.int64).reshape(-1, 3)
-    diam = _edge_lengths(x, cells).max(axis=1, initial=0.0)
+    diam = cell_diameters(x, cells)
     out = np.zeros(len(x))
     for k in range(3):
         np.maximum.at(out, cells[:, k], diam)
     return out
 
 
-def _edge_lengths(x: npt.NDArray[np.float64], cells: npt.NDArray[np.int64]) -> np.ndarray:
-    """Edge lengths ``(num_cells, 3)``; column k is the edge opposite vertex k."""
-    p = x[cells]
-    return np.linalg.norm(p[:, [2, 0, 1]] - p[:, [1, 2, 0]], axis=2)
-
-
 _STENCILS = _build_stencils()
 _STRETCH = (np.array([MAX_STRETCH, 1.0]), np.array([1.0, MAX_STRETCH]))
-_ALL_ANGLES = np.concatenate([_angles(p, t).ravel() for p, t, _ in _STENCILS])
-_ALL_EDGES = np.concatenate([_edge_lengths(p, t).ravel() for p, t, _ in _STENCILS])
+_ALL_ANGLES = np.concatenate([np.degrees(interior_angles(p, t)).ravel() for p, t, _ in _STENCILS])
+_ALL_EDGES = np.concatenate([edge_lengths(p, t).ravel() for p, t, _ in _STENCILS])
 #: Smallest and largest angle (degrees) of any triangle of any stencil, hence of any mesh
 #: built here.
 STENCIL_ANGLE_RANGE: tuple[float, float] = (float(_ALL_ANGLES.min()), float(_ALL_ANGLES.max()))
@@ -674,7 +651,10 @@ _EDGE_MIN: float = float(_ALL_EDGES.min())
 
 #: Smallest and largest angle (degrees) of the stencils stretched by up to
 #: :data:`MAX_STRETCH` in x or y (root cells of boxes that are not whole squares).
+_STRETCHED_ANGLES = [
+    np.degrees(interior_angles(p * f, t)) for p, t, _ in _STENCILS for f in _STRETCH
+]
 STRETCHED_ANGLE_RANGE: tuple[float, float] = (
-    float(min(_angles(p * f, t).min() for p, t, _ in _STENCILS for f in _STRETCH)),
-    float(max(_angles(p * f, t).max() for p, t, _ in _STENCILS for f in _STRETCH)),
+    float(min(a.min() for a in _STRETCHED_ANGLES)),
+    float(max(a.max() for a in _STRETCHED_ANGLES)),
 )

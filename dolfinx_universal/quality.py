@@ -9,7 +9,8 @@ from mpi4py import MPI
 import numpy as np
 import numpy.typing as npt
 
-from .classify import interior_angles, positively_cut, signed_areas
+from ._geometry import edge_lengths, interior_angles, signed_areas
+from .classify import positively_cut
 
 if TYPE_CHECKING:
     from .conform import ConformingMesh
@@ -17,20 +18,15 @@ if TYPE_CHECKING:
 __all__ = ["cell_quality", "edge_ratio", "quality_report", "radius_ratio"]
 
 
-def _edges(x: npt.NDArray[np.float64], cells: npt.NDArray) -> npt.NDArray[np.float64]:
-    p = x[cells][:, :, :2]
-    return np.linalg.norm(np.roll(p, -1, axis=1) - p, axis=2)
-
-
 def edge_ratio(x: npt.NDArray[np.float64], cells: npt.NDArray) -> npt.NDArray[np.float64]:
     """``Q`` = longest edge / shortest edge of each triangle, ``(m,)`` (1 when equilateral)."""
-    e = _edges(x, cells)
+    e = edge_lengths(x, cells)
     return e.max(axis=1) / e.min(axis=1)
 
 
 def radius_ratio(x: npt.NDArray[np.float64], cells: npt.NDArray) -> npt.NDArray[np.float64]:
     """Circumradius / inradius of each triangle, ``(m,)`` (2 when equilateral)."""
-    e = _edges(x, cells)
+    e = edge_lengths(x, cells)
     area = np.abs(signed_areas(x, cells))
     semi = 0.5 * e.sum(axis=1)
     circum = e.prod(axis=1) / (4.0 * area)

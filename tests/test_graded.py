@@ -6,10 +6,11 @@ from mpi4py import MPI
 
 import numpy as np
 import pytest
-from conftest import run_mpi
+from conftest import needs_ranks
 
 import dolfinx_universal  # noqa: F401  (initialises the DOLFINx wheel before dolfinx imports)
 from dolfinx_universal import graded as gr
+from dolfinx_universal._geometry import edge_lengths, interior_angles, signed_areas
 from dolfinx_universal.graded import (
     EDGE_FACTOR,
     STENCIL_ANGLE_RANGE,
@@ -54,11 +55,11 @@ def check_mesh(x: np.ndarray, cells: np.ndarray, box) -> dict:
     assert x[:, 0].min() == x0 and x[:, 0].max() == x1
     assert x[:, 1].min() == y0 and x[:, 1].max() == y1
     # Counter-clockwise, area of the box.
-    area = gr._signed_areas(x, cells)
+    area = signed_areas(x, cells)
     assert area.min() > 0
     assert np.isclose(area.sum(), (x1 - x0) * (y1 - y0), rtol=1e-12)
     # Strictly acute, within the stencil range.
-    ang = gr._angles(x, cells)
+    ang = np.degrees(interior_angles(x, cells))
     assert np.allclose(ang.sum(axis=1), 180.0)
     lo, hi = STENCIL_ANGLE_RANGE
     assert ang.max() < 90.0
@@ -86,7 +87,7 @@ def check_mesh(x: np.ndarray, cells: np.ndarray, box) -> dict:
     # A triangulated disc: V - E + F = 1.
     assert len(x) - len(edges) + len(cells) == 1
     # Neighbouring triangles: diameters differ at most by 1 / sin(min angle) (law of sines).
-    diam = gr._edge_lengths(x, cells).max(axis=1)
+    diam = edge_lengths(x, cells).max(axis=1)
     ratio = np.maximum(diam[pairs[:, 0]] / diam[pairs[:, 1]], diam[pairs[:, 1]] / diam[pairs[:, 0]])
     assert ratio.max() <= 1.0 / np.sin(np.radians(lo)) + 1e-12
     return {
@@ -105,7 +106,7 @@ def check_sizes(x, cells, size, slope: float):
     ``EDGE_FACTOR / (EDGE_FACTOR - slope sqrt(2)/4) h(c)``. From below, transition stencils
     carry triangles of their finer neighbours, so diameters reach down to about 0.1 h.
     """
-    e = gr._edge_lengths(x, cells)
+    e = edge_lengths(x, cells)
     h = size(x[cells].mean(axis=1))
     upper = EDGE_FACTOR / (EDGE_FACTOR - slope * np.sqrt(2) / 4)
     ratio = e.max(axis=1) / h
@@ -126,9 +127,9 @@ def test_stencil(mask):
     assert np.array_equal(pts[:nb], bnd / 4.0)
     on_bnd = (pts == 0) | (pts == 1)
     assert on_bnd[:nb].any(axis=1).all() and not on_bnd[nb:].any()
-    area = gr._signed_areas(pts, tris)
+    area = signed_areas(pts, tris)
     assert area.min() > 0 and np.isclose(area.sum(), 1.0, rtol=1e-13)
-    ang = gr._angles(pts, tris)
+    ang = np.degrees(interior_angles(pts, tris))
     assert ang.max() < 75.0 and ang.min() > 36.0
     # Stencil boundary: the square's sides split exactly at the prescribed points.
     edges, counts, _ = edge_data(pts, tris)
@@ -154,7 +155,7 @@ def test_stencil(mask):
 
 def test_mask0_is_exact():
     pts, tris, _ = gr._STENCILS[0]
-    ang = np.sort(np.round(gr._angles(pts, tris), 9).ravel())
+    ang = np.sort(np.round(np.degrees(interior_angles(pts, tris)), 9).ravel())
     assert set(np.unique(ang)) == {45.0, 54.0, 63.0, 72.0}
 
 
@@ -249,7 +250,7 @@ def test_circle_size():
 def test_constant_size(h):
     x, cells = acute_quadtree_triangulation(BOX, h)
     stats = check_mesh(x, cells, BOX)
-    e = gr._edge_lengths(x, cells)
+    e = edge_lengths(x, cells)
     # One leaf size s in (h / (2 EDGE_FACTOR), h / EDGE_FACTOR], all leaves of stencil 0
     # (edges between 0.295 s and EDGE_FACTOR s).
     assert e.max() <= h and e.min() >= 0.27 * h
@@ -282,11 +283,11 @@ def test_min_max_size_and_rectangle():
     # max_size forces refinement where the size function is coarse.
     x, cells = acute_quadtree_triangulation(box, 10.0, max_size=0.1)
     check_mesh(x, cells, box)
-    assert gr._edge_lengths(x, cells).max() <= 0.1
+    assert edge_lengths(x, cells).max() <= 0.1
     # min_size stops refinement where the size function is tiny.
     x, cells = acute_quadtree_triangulation(box, lambda p: np.full(len(p), 1e-9), min_size=0.05)
     check_mesh(x, cells, box)
-    assert gr._edge_lengths(x, cells).min() >= 0.27 * 0.05
+    assert edge_lengths(x, cells).min() >= 0.27 * 0.05
     # A single root square: 14 triangles.
     x, cells = acute_quadtree_triangulation([[0, 0], [1, 1]], 5.0)
     check_mesh(x, cells, [[0, 0], [1, 1]])
@@ -309,7 +310,7 @@ def test_invalid_input():
 def test_local_size():
     x, cells = acute_quadtree_triangulation(BOX, circle_size)
     ls = local_size(x, cells)
-    e = gr._edge_lengths(x, cells).max(axis=1)
+    e = edge_lengths(x, cells).max(axis=1)
     brute = np.zeros(len(x))
     for t, d in zip(cells, e):
         brute[t] = np.maximum(brute[t], d)
@@ -334,26 +335,11 @@ def test_graded_mesh_serial():
 
 
 @pytest.mark.mpi
+@needs_ranks(2)
 def test_graded_mesh_mpi():
-    code = (
-        "import dolfinx_universal\n"
-        "import numpy as np\n"
-        "from mpi4py import MPI\n"
-        "from dolfinx_universal.graded import graded_mesh\n"
-        "def size(p):\n"
-        "    r = np.hypot(p[:, 0], p[:, 1])\n"
-        f"    return np.clip({H_FINE} + {SLOPE} * np.abs(r - 0.5), {H_FINE}, {H_COARSE})\n"
-        f"msh = graded_mesh(MPI.COMM_WORLD, {BOX}, size)\n"
-        "imap = msh.topology.index_map(2)\n"
-        "ghosts = MPI.COMM_WORLD.allreduce(imap.num_ghosts)\n"
-        "owned = MPI.COMM_WORLD.allreduce(imap.size_local)\n"
-        "if MPI.COMM_WORLD.rank == 0:\n"
-        "    print('RESULT', imap.size_global, owned, ghosts, MPI.COMM_WORLD.size)\n"
-    )
-    out = run_mpi(2, ["-c", code], timeout=120).stdout
-    line = next(s for s in out.splitlines() if s.startswith("RESULT"))
-    n_global, owned, ghosts, size = map(int, line.split()[1:])
+    msh = graded_mesh(MPI.COMM_WORLD, BOX, circle_size)
+    imap = msh.topology.index_map(2)
+    c = MPI.COMM_WORLD
     _, cells = acute_quadtree_triangulation(BOX, circle_size)
-    assert size == 2
-    assert n_global == owned == len(cells)
-    assert ghosts > 0
+    assert imap.size_global == c.allreduce(imap.size_local) == len(cells)
+    assert c.allreduce(imap.num_ghosts) > 0

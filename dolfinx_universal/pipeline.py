@@ -1,0 +1,337 @@
+"""Stages of the straight map: signs near Gamma, band projection, eta perturbation, Gamma_h, M_h.
+
+Each stage works on process-local arrays of one background (owned and ghost vertices, owned
+cells first) and is collective where it calls the boundary or combines vertex values.
+:meth:`dolfinx_universal.conform.UniversalMesh.straight_map` runs them in order.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from mpi4py import MPI
+
+import numpy as np
+import numpy.typing as npt
+from dolfinx import mesh as dmesh
+
+from ._geometry import Bool, Float, Int
+from .classify import kept_cells, perturbation_candidates, positive_edges, positively_cut
+from .classify import straight_map as _straight_map
+from .validation import Problem, collective_call, raise_collective, vertex_reduce
+
+if TYPE_CHECKING:
+    from dolfinx.common import IndexMap
+
+    from .boundaries import Boundary
+
+__all__ = [
+    "PositiveEdges",
+    "band_cells",
+    "classify_near",
+    "gamma_h",
+    "map_band",
+    "perturb",
+    "project_band",
+]
+
+
+def classify_near(
+    comm: MPI.Comm, boundary: Boundary, x: Float, h: Float, R_r: Float
+) -> tuple[Float, Int]:
+    """Vertex signs, and the vertices within ``R_r`` of Gamma (collective).
+
+    Gamma lies in its bounding box, so every vertex outside the box (enlarged by the band
+    width) has the sign of the far field: only the vertices in the box are tested, and only
+    those within ``R_r`` of Gamma are in the band (to be projected).
+
+    Parameters
+    ----------
+    comm
+        Communicator of the mesh.
+    boundary
+        The domain.
+    x
+        Vertex coordinates ``(num_vertices, 2)``.
+    h, R_r
+        Mesh size and relaxation radius at each vertex ``(num_vertices,)``.
+
+    Returns
+    -------
+    s
+        Vertex signs (-1 inside, +1 outside or on Gamma) ``(num_vertices,)``.
+    band
+        Indices of the vertices in the band ``(num_band,)``.
+    """
+    nv = len(x)
+    rmax = float(R_r.max()) if nv else 0.0
+    box = np.asarray(collective_call(comm, "the bounding box", boundary.bounding_box), dtype=float)
+    pad = rmax + 2.0 * (float(h.max()) if nv else 0.0)
+    lo, hi = box[0] - pad, box[1] + pad
+    far = np.asarray(
+        collective_call(comm, "the sign test", boundary.sign, (hi + pad)[None]), dtype=float
+    )[0]
+    cand = np.flatnonzero(
+        (x[:, 0] >= lo[0]) & (x[:, 0] <= hi[0]) & (x[:, 1] >= lo[1]) & (x[:, 1] <= hi[1])
+    )
+    s = np.full(nv, far)
+    s[cand] = collective_call(comm, "the sign test", boundary.sign, x[cand])
+    near_flag = np.asarray(
+        collective_call(comm, "the band test", boundary.near, x[cand], rmax), dtype=bool
+    )
+    return s, cand[near_flag]
+
+
+def project_band(
+    comm: MPI.Comm, boundary: Boundary, x: Float, s: Float, band: Int, h: Float
+) -> tuple[Float, Float, Float, Float]:
+    """Signed distances, closest points and normals of the band vertices (collective).
+
+    Points on Gamma count as outside. A vertex on Gamma up to rounding that the
+    sign test put inside would be relaxed inwards while its neighbours snap onto it; it is
+    treated as on Gamma (sign +1, distance 0).
+
+    Parameters
+    ----------
+    comm, boundary, x
+        As in :func:`classify_near`.
+    s
+        Vertex signs from :func:`classify_near` ``(num_vertices,)`` (not modified).
+    band
+        Band vertices ``(num_band,)``.
+    h
+        Mesh size at each vertex ``(num_vertices,)``.
+
+    Returns
+    -------
+    s
+        Signs with the vertices on Gamma set to +1 ``(num_vertices,)``.
+    phi
+        Signed distances; ``+-inf`` (by sign) outside the band ``(num_vertices,)``.
+    closest, normal
+        Closest points ``pi(x)`` and outward normals there; NaN outside the band
+        ``(num_vertices, 2)``.
+
+    Raises
+    ------
+    MeshingError
+        On every rank, when the projection returns NaN/inf somewhere.
+    """
+    nv = len(x)
+    s = s.copy()
+    phi = np.where(s < 0, -np.inf, np.inf)
+    closest = np.full((nv, 2), np.nan)
+    normal = np.full((nv, 2), np.nan)
+    xb = x[band]
+    phi_b, y_b = collective_call(comm, "closest-point projection", boundary.project, xb)
+    bad = ~(np.isfinite(phi_b) & np.isfinite(y_b).all(axis=1))
+    raise_collective(
+        comm,
+        [Problem("closest-point projection returned NaN/inf for vertices at {where}",
+                 xb[bad], int(bad.sum()), refinable=False)]
+        if bad.any()
+        else [],
+    )  # fmt: skip
+    phi[band], closest[band] = phi_b, y_b
+    on_gamma = band[(phi_b <= 0) & (phi_b > -1e-10 * h[band])]
+    s[on_gamma], phi[on_gamma] = 1.0, 0.0
+    normal[band] = collective_call(comm, "the normal", boundary.normal, y_b)
+    return s, phi, closest, normal
+
+
+def band_cells(
+    topology: dmesh.Topology, band: Int, num_owned_cells: int
+) -> tuple[npt.NDArray[np.int32], npt.NDArray[np.int32]]:
+    """Cells with a vertex in the band: all of them, and the owned ones.
+
+    Every moved or positively cut cell is among them.
+
+    Parameters
+    ----------
+    topology
+        Background topology (vertex -> cell connectivity created).
+    band
+        Band vertices ``(num_band,)``.
+    num_owned_cells
+        Number of owned cells (the first ones).
+
+    Returns
+    -------
+    near_all
+        Owned and ghost cells at the band ``(m,)``.
+    near_owned
+        The owned ones among them ``(m_owned,)``.
+    """
+    near_all = dmesh.compute_incident_entities(topology, band.astype(np.int32), 0, 2)
+    return near_all, near_all[near_all < num_owned_cells]
+
+
+def perturb(
+    comm: MPI.Comm,
+    imv: IndexMap,
+    x: Float,
+    phi: Float,
+    s: Float,
+    closest: Float,
+    near: Int,
+    eta: float,
+) -> tuple[Float, Float, Float, int]:
+    """The eta quality perturbation: relocate inside vertices too close to Gamma (collective).
+
+    Vertices selected by :func:`~dolfinx_universal.classify.perturbation_candidates` on any
+    rank move to their closest point on Gamma (sign +1, distance 0), until a fixed point.
+
+    Parameters
+    ----------
+    comm
+        Communicator of the mesh.
+    imv
+        Vertex index map.
+    x, closest
+        Vertex coordinates and closest points ``(num_vertices, 2)``.
+    phi, s
+        Signed distances and signs ``(num_vertices,)`` (not modified).
+    near
+        Owned cells at the band, as vertex indices ``(m, 3)``.
+    eta
+        Perturbation threshold; 0 disables the perturbation.
+
+    Returns
+    -------
+    xp, phi, s
+        Perturbed positions ``(num_vertices, 2)``, distances and signs ``(num_vertices,)``.
+    num_relocated
+        Number of vertices relocated (global).
+    """
+    nv = len(x)
+    xp, phi, s = x.copy(), phi.copy(), s.copy()
+    relocated = np.zeros(nv, dtype=bool)
+    while eta > 0:
+        flag = np.zeros(nv)
+        flag[perturbation_candidates(xp, phi, s, near, eta)] = 1.0
+        new = (vertex_reduce(imv, flag, "sum") > 0) & ~relocated
+        if comm.allreduce(int(new[: imv.size_local].sum())) == 0:
+            break
+        xp[new], phi[new], s[new] = closest[new], 0.0, 1.0
+        relocated |= new
+    return xp, phi, s, comm.allreduce(int(relocated[: imv.size_local].sum()))
+
+
+@dataclass
+class PositiveEdges:
+    """Positive edges of the owned positively cut cells, and the kept cells (Gamma_h).
+
+    Attributes
+    ----------
+    cells
+        Owned positively cut cells ``(m,)``.
+    u, v, w
+        Their positive edges ``(u, v)`` and inside vertices ``w`` ``(m,)`` (see
+        :func:`~dolfinx_universal.classify.positive_edges`).
+    count
+        Global number of positive edges at each vertex ``(num_vertices,)``.
+    on_edge
+        Vertices of a positive edge (snapped onto Gamma) ``(num_vertices,)``.
+    kept
+        Cells of ``T_h^sub`` (owned and ghost) ``(num_cells,)``.
+    near_kept
+        Owned kept cells at the band ``(k,)``.
+    in_kept
+        Vertices of ``near_kept`` cells on any rank ``(num_vertices,)``.
+    """
+
+    cells: Int
+    u: Int
+    v: Int
+    w: Int
+    count: Float
+    on_edge: Bool
+    kept: Bool
+    near_kept: Int
+    in_kept: Bool
+
+
+def _incidence(imv: IndexMap, vertices: Int, n: int) -> Float:
+    """Global number of times each local vertex appears in ``vertices`` (over all ranks)."""
+    count = np.bincount(vertices.ravel(), minlength=n).astype(np.float64)
+    return vertex_reduce(imv, count, "sum")
+
+
+def gamma_h(imv: IndexMap, s: Float, c2v: Int, near_cells: Int) -> PositiveEdges:
+    """Positive edges, Gamma_h and the kept cells from the final signs (collective).
+
+    A vertex outside the domain in a kept triangle is next to an inside vertex, hence in the
+    band: the incidence counts near the band are all that the checks need.
+
+    Parameters
+    ----------
+    imv
+        Vertex index map.
+    s
+        Final vertex signs ``(num_vertices,)``.
+    c2v
+        Cell -> vertex connectivity (owned cells first) ``(num_cells, 3)``.
+    near_cells
+        Owned cells at the band ``(m,)`` (:func:`band_cells`).
+
+    Returns
+    -------
+    The positive edges and incidences.
+    """
+    nv = len(s)
+    near = c2v[near_cells]
+    pc_owned = near_cells[positively_cut(s, near)]
+    u, v, w = positive_edges(s, c2v[pc_owned])
+    count = _incidence(imv, np.concatenate([u, v]), nv)
+    kept = kept_cells(s, c2v)
+    near_kept = near_cells[kept[near_cells]]
+    in_kept = _incidence(imv, c2v[near_kept], nv) > 0
+    return PositiveEdges(pc_owned, u, v, w, count, count > 0, kept, near_kept, in_kept)
+
+
+def map_band(
+    x: Float,
+    xp: Float,
+    phi: Float,
+    closest: Float,
+    normal: Float,
+    on_edge: Bool,
+    h: Float,
+    R_r: Float,
+    alpha: float,
+    band: Int,
+) -> tuple[Float, Bool]:
+    """``M_h`` on the perturbed background; it moves band vertices only.
+
+    Parameters
+    ----------
+    x, xp
+        Original and perturbed vertex positions ``(num_vertices, 2)``.
+    phi
+        Signed distances ``(num_vertices,)``.
+    closest, normal
+        Closest points and normals ``(num_vertices, 2)``.
+    on_edge
+        Vertices of positive edges ``(num_vertices,)``.
+    h, R_r
+        Mesh size and relaxation radius at each vertex ``(num_vertices,)``.
+    alpha
+        Relaxation factor.
+    band
+        Band vertices ``(num_band,)``.
+
+    Returns
+    -------
+    y
+        Images ``M_h(xp)`` ``(num_vertices, 2)``.
+    moved
+        Vertices whose image differs from their original position ``(num_vertices,)``.
+    """
+    y = xp.copy()
+    y[band] = _straight_map(
+        xp[band], phi[band], closest[band], normal[band], on_edge[band], h[band], R_r[band], alpha
+    )
+    moved = np.zeros(len(x), dtype=bool)
+    moved[band] = np.any(y[band] != x[band], axis=1)
+    return y, moved
