@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 from mpi4py import MPI
 
 import basix
@@ -146,3 +148,229 @@ def test_boundary_polyline_several_curves():
     assert len(gap) == 1  # two closed curves
     for piece in (line[: gap[0]], line[gap[0] + 1 :]):
         np.testing.assert_array_equal(piece[0], piece[-1])
+
+
+# --- Curved drawing, fields, legends, large meshes -------------------------------------------
+
+from matplotlib.collections import LineCollection  # noqa: E402
+from matplotlib.colors import to_rgba  # noqa: E402
+
+from dolfinx_universal.plotting import (  # noqa: E402
+    GAMMA_H_COLOR,
+    cell_edges,
+    field_triangulation,
+    plot_function,
+    reference_lattice,
+    unique_edges,
+)
+
+
+def disc(h: float = 0.25):
+    bg = du.equilateral_mesh(comm, [[-1.5, -1.5], [1.5, 1.5]], h)
+    return du.conform(bg, Circle([0.0, 0.0], 1.0))
+
+
+def triangle_area(points, triangles) -> np.ndarray:
+    a = points[triangles]
+    d1, d2 = a[:, 1] - a[:, 0], a[:, 2] - a[:, 0]
+    return 0.5 * (d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+
+
+def gamma_h_segments(ax) -> np.ndarray:
+    target = to_rgba(GAMMA_H_COLOR)
+    colls = [
+        c
+        for c in ax.collections
+        if isinstance(c, LineCollection) and np.allclose(c.get_colors()[0], target)
+    ]
+    assert len(colls) == 1
+    return colls[0].get_segments()
+
+
+def test_reference_lattice():
+    for n in (1, 2, 5):
+        pts, tris = reference_lattice(n)
+        assert pts.shape == ((n + 1) * (n + 2) // 2, 2) and tris.shape == (n * n, 3)
+        area = triangle_area(pts, tris)
+        assert np.all(area > 0) and area.sum() == pytest.approx(0.5)
+
+
+@pytest.mark.parametrize("k", [1, 3])
+def test_gamma_h_is_drawn_curved(k):
+    """The drawn Gamma_h of a degree-3 disc lies on the circle, the straight one O(h^2) off."""
+    cm = disc(0.1)
+    mesh = du.curved_mesh(cm, k) if k > 1 else None
+    fig, ax = plot_conforming(None, cm, show_background=False, mesh=mesh, inset=False)
+    if comm.rank != 0:
+        assert fig is None
+        return
+    segs = gamma_h_segments(ax)
+    pts = np.concatenate(segs)
+    r = np.linalg.norm(pts, axis=1)
+    assert np.abs(r - 1.0).max() < (1e-6 if k == 3 else 1e-12 + 1.0)
+    chords = np.array([np.linalg.norm(s[-1] - s[0]) for s in segs])
+    assert np.isclose(chords.sum(), 2 * np.pi, rtol=1e-2)  # the whole circle
+    if k == 1:  # straight edges: chord midpoints are h^2 / 8 inside the circle
+        mid = np.linalg.norm([0.5 * (s[0] + s[-1]) for s in segs], axis=1)
+        dev = 1.0 - mid
+        assert dev.max() > 1e-4 and np.allclose(dev, chords**2 / 8, rtol=0.05)
+    else:
+        assert all(len(s) > 2 for s in segs)
+
+
+def test_field_covers_curved_cells():
+    cm = disc(0.3)
+    cv = du.curved_mesh(cm, 3)
+    V = fem.functionspace(cv.mesh, ("Lagrange", 2))
+    u = fem.Function(V, name="u")
+    u.interpolate(lambda x: np.sin(2 * x[0]) + x[1] ** 2)
+    import ufl
+
+    area = comm.allreduce(fem.assemble_scalar(fem.form(1.0 * ufl.dx(cv.mesh))))
+    nodes = gather_cells(cv.mesh)
+    errors = {}
+    for n in (12, 224):
+        pts, tris, vals = field_triangulation(u, curved_subdivisions=n)
+        if comm.rank == 0:
+            a = triangle_area(pts, tris)
+            assert a.min() > 0  # no folded sub-triangle
+            errors[n] = abs(a.sum() - area)
+            if n == 12:  # exactly the region enclosed by the drawn (curved) cell edges
+                lines, on_boundary, _ = unique_edges(cell_edges(nodes, 3, 12))
+                loop = lines[on_boundary].reshape(-1, 2)  # repeated points add no area
+                order = np.argsort(np.arctan2(loop[:, 1], loop[:, 0]))
+                x, y = loop[order].T
+                enclosed = 0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+                assert a.sum() == pytest.approx(enclosed, abs=1e-12)
+    if comm.rank == 0:
+        assert errors[224] < 1e-6 and errors[12] < 1e-3
+    straight = field_triangulation(u, subdivisions=1, curved_subdivisions=1)
+    if comm.rank == 0:  # straight triangles leave O(h^2) slivers along Gamma
+        assert area - triangle_area(straight[0], straight[1]).sum() > 1e-3
+    if comm.size == 1:  # the values are u's, evaluated through its dofs and basis
+        from dolfinx_universal.plotting import curved_cells
+
+        pts, _, vals = field_triangulation(u, subdivisions=3, curved_subdivisions=5)
+        curved = curved_cells(nodes)  # straight cells come first, 10 points each, then 21
+        cells = np.concatenate(
+            [np.repeat(np.flatnonzero(~curved), 10), np.repeat(np.flatnonzero(curved), 21)]
+        )
+        assert len(cells) == len(pts) and curved.sum() > 10
+        p3 = np.column_stack([pts, np.zeros(len(pts))])
+        np.testing.assert_allclose(u.eval(p3, cells.astype(np.int32))[:, 0], vals, atol=1e-12)
+
+
+def test_plot_function_png(tmp_path):
+    cm = disc(0.3)
+    cv = du.curved_mesh(cm, 3)
+    V = fem.functionspace(cv.mesh, ("Lagrange", 2, (2,)))
+    u = fem.Function(V, name="u")
+    u.interpolate(lambda x: np.stack([-x[1], x[0]]))
+    fig, ax = plot_function(
+        None, u, boundary=cm.boundary, show_mesh=True, inset=(0.5, 0.5, 0.9, 0.9), title="u"
+    )
+    path = tmp_path / "field.png"
+    save(fig, path)
+    assert_png(path)
+    if comm.rank == 0:
+        assert ax.get_xlabel() == "x" and ax.get_ylabel() == "y"
+        assert len(ax.child_axes) == 1 and ax.get_title() == "u"
+        assert fig.axes[-1].get_ylabel() == "|u|"  # the colorbar
+
+
+def test_plot_function_active_cells():
+    bg = du.equilateral_mesh(comm, [[-1.5, -1.5], [1.5, 1.5]], 0.3)
+    from dolfinx_universal.moving import MovingDomain
+
+    md = MovingDomain(bg, degree=2)
+    md.update(Circle([0.1, 0.0], 0.8))
+    V = fem.functionspace(md.mesh, ("Lagrange", 1))
+    u = fem.Function(V)
+    u.interpolate(lambda x: x[0])
+    import ufl
+
+    area = comm.allreduce(fem.assemble_scalar(fem.form(md.active * ufl.dx(md.mesh))))
+    for kwargs in ({"active": md.active}, {"cells": md.active_cells}):
+        pts, tris, _ = field_triangulation(u, curved_subdivisions=64, **kwargs)
+        if comm.rank == 0:
+            assert triangle_area(pts, tris).sum() == pytest.approx(area, abs=1e-4)
+    fig, ax = plot_function(None, u, active=md.active)
+    if comm.rank == 0:
+        assert ax.get_xlim()[1] < 1.2  # the inactive background is not drawn
+
+
+def test_legend_and_labels():
+    cm = disc(0.25)
+    curved = du.curved_mesh(cm, 2)
+    figures = [  # collective: every rank calls, rank 0 draws
+        plot_conforming(None, cm, mesh=curved),
+        plot_conforming(None, cm, legend=False, inset=False),
+        plot_conforming(None, cm),
+    ]
+    if comm.rank != 0:
+        assert all(f == (None, None) for f in figures)
+        return
+    ax = figures[0][1]
+    assert ax.get_xlabel() == "x" and ax.get_ylabel() == "y"
+    assert ax.get_aspect() == 1.0
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert any(s.startswith("curved, degree 2") for s in labels)
+    assert any("Gamma_h" in s for s in labels) and any("exact" in s for s in labels)
+    assert any("unaltered" in s for s in labels) and any("moved" in s for s in labels)
+    assert len(ax.child_axes) == 1  # the automatic zoom of a new figure
+    ax = figures[1][1]
+    assert ax.get_legend() is None and not ax.child_axes
+    labels = [t.get_text() for t in figures[2][1].get_legend().get_texts()]
+    assert any("positively cut" in s for s in labels)  # degree 1: nothing curved
+
+
+def test_large_mesh_thin_lines_and_inset(tmp_path):
+    msh = dmesh.create_unit_square(comm, 100, 100)  # 20000 cells
+    nodes = gather_cells(msh)
+    path = tmp_path / "big.png"
+    if comm.rank == 0:
+        fig = Figure(figsize=(6, 6))
+        ax = fig.add_subplot()
+        plot_mesh(ax, nodes, facecolors="#dbe7f3")
+        lines = [c for c in ax.collections if isinstance(c, LineCollection)]
+        assert len(lines) == 1 and lines[0].get_linewidths()[0] < 0.15
+        assert len(lines[0].get_segments()) == 30200  # each edge once
+        plot_mesh(Figure().add_subplot(), nodes, max_edge_cells=10000)
+        from dolfinx_universal.plotting import add_inset
+
+        add_inset(ax, (0.4, 0.4, 0.5, 0.5), lambda a: plot_mesh(a, nodes, linewidth=0.8))
+        assert len(ax.child_axes) == 1
+        save(fig, path)
+    assert_png(path)
+
+
+def test_large_conforming_mesh_inset(tmp_path):
+    bg = du.equilateral_mesh(comm, [[-1.2, -1.2], [1.2, 1.2]], 0.02)
+    cm = du.conform(bg, Circle([0.0, 0.0], 1.0))
+    assert cm.mesh.topology.index_map(2).size_global > 15000
+    fig, ax = plot_conforming(None, cm, show_background=False, inset=(0.6, 0.6, 0.75, 0.75))
+    if comm.rank == 0:
+        lines = [c for c in ax.collections if isinstance(c, LineCollection)]
+        assert max(c.get_linewidths()[0] for c in lines if len(c.get_segments()) > 5000) < 0.15
+        assert len(ax.child_axes) == 1
+    save(fig, tmp_path / "big_conforming.png")
+    assert_png(tmp_path / "big_conforming.png")
+
+
+def test_plot_mpi(tmp_path):
+    from conftest import run_mpi_json
+
+    serial = run_mpi_json(1, "plot_mpi.py", tmp_path / "serial.json", str(tmp_path / "s"))
+    parallel = run_mpi_json(2, "plot_mpi.py", tmp_path / "parallel.json", str(tmp_path / "p"))
+    assert parallel["size"] == 2 and serial["size"] == 1
+    for key in ("num_cells", "num_gamma_segments", "legend", "field_area", "field_points"):
+        assert parallel[key] == pytest.approx(serial[key], rel=1e-12), key
+    assert (tmp_path / "p" / "mesh.png").read_bytes()[:8] == PNG
+
+
+def test_missing_matplotlib_message(monkeypatch):
+    import dolfinx_universal.plotting as plotting
+
+    monkeypatch.setitem(sys.modules, "matplotlib", None)
+    with pytest.raises(ImportError, match=r"pip install dolfinx_universal\[plot\]"):
+        plotting._mpl()
