@@ -1,6 +1,42 @@
+# ---
+# jupyter:
+#   jupytext:
+#     text_representation:
+#       extension: .py
+#       format_name: light
+#       format_version: '1.5'
+# ---
+
 # # A simply supported Reissner-Mindlin plate: which tangent?
 #
-# A circular plate of radius $R = 3.142$ and thickness $\tau = R/4$ (SPEC §7.3), Lamé
+# This demo reproduces the simply supported plate example of Rangarajan & Lew (2014): on a
+# curved universal mesh, the slip condition $\theta \cdot T = 0$ must be imposed with the
+# tangent of the true boundary; with the tangent of the discrete boundary the plate is
+# clamped at its boundary vertices and converges to a wrong deflection.
+#
+# It illustrates how to
+#
+# - solve a mixed problem on degree-2 and degree-4 curved universal meshes of a disc,
+# - impose a tangential condition node by node with
+#   {py:class}`dolfinx_universal.constraints.SlipConstraint`,
+# - evaluate a function at a point in parallel.
+#
+# Run it with
+#
+# ```bash
+# python demos/plate.py [--quick] [--out DIR]
+# mpirun -n 2 python demos/plate.py [--quick] [--out DIR]
+# ```
+#
+# (same numbers on any number of ranks; `--quick` keeps the two coarsest of the four
+# levels). In a notebook, call `main(["--quick"])`. The output folder (default `out/plate`)
+# receives `summary.json` and the figures `deflection.png` and `w_center.png`. The log
+# lists, per run, the number of boundary nodes with one condition and with two (the
+# clamped vertices of the discrete-tangent variant).
+#
+# ## The problem
+#
+# A circular plate of radius $R = 3.142$ and thickness $\tau = R/4$, Lamé
 # constants $\lambda = \mu = 1$, uniform load $p = 10^{-3}$. The rotations $\theta$ and the
 # deflection $w$ minimise
 #
@@ -50,17 +86,14 @@
 # The same steps with $\phi(R) = 0$ give the clamped plate,
 # $w(0) = f R^4 / (64(\lambda + 2\mu)) + f R^2/(4k) = 0.01571$: the value that the
 # discrete-tangent variant drifts towards as more and more boundary points are clamped.
-#
-# Run with `python demos/plate.py [--quick] [--out DIR]`, also under mpirun. `--quick` keeps
-# the two coarsest of the four levels. The log lists, per run, the number of boundary nodes
-# with one condition and with two (the clamped vertices of the discrete-tangent variant).
+
 
 # +
 from __future__ import annotations
 
-import argparse
-import json
+import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 from mpi4py import MPI
@@ -72,20 +105,8 @@ from dolfinx import fem, geometry
 
 import dolfinx_universal as du
 from dolfinx_universal.constraints import SlipConstraint
-
-parser = argparse.ArgumentParser(description="Reissner-Mindlin plate with slip constraints")
-parser.add_argument("--quick", action="store_true", help="only the two coarsest levels")
-parser.add_argument("--out", type=Path, default=Path("out/plate"), help="output folder")
-args = parser.parse_args()
-comm = MPI.COMM_WORLD
-if comm.rank == 0:
-    args.out.mkdir(parents=True, exist_ok=True)
-
-
-def log(*a) -> None:
-    if comm.rank == 0:
-        print(*a, flush=True)
-
+from dolfinx_universal.demo_support import demo_options, log, write_summary
+from dolfinx_universal.plotting import save
 
 R, tau, lam, mu, p = 3.142, 3.142 / 4, 1.0, 1.0, 1e-3
 k_shear, f_load = 12 * mu / tau**2, 12 * p / tau**3
@@ -94,13 +115,13 @@ w_exact = f_load * (
 )
 assert np.isclose(w_exact, p * (R**4 + R**2 * tau**2) / (4 * tau**3))
 w_clamped = f_load * (R**4 / (64 * (lam + 2 * mu)) + R**2 / (4 * k_shear))
-log(f"exact centre deflection w(0) = {w_exact:.6f} (clamped plate: {w_clamped:.6f})")
 # -
 
 # ## The solver
 #
 # A mixed space $W = P_2^2 \times P_2$; $w = 0$ is an ordinary Dirichlet condition on the
 # boundary nodes, $\theta\cdot T = 0$ a {py:class}`SlipConstraint` on `W.sub(0)`.
+
 
 # +
 def eps(v):
@@ -140,7 +161,9 @@ def value_at_origin(u: fem.Function) -> float:
     candidates = geometry.compute_collisions_points(tree, point)
     cells = geometry.compute_colliding_cells(msh, candidates, point).links(0)
     local = float(u.eval(point, cells[:1])[0]) if len(cells) else None
-    return next(v for v in comm.allgather(local) if v is not None)
+    return next(v for v in msh.comm.allgather(local) if v is not None)
+
+
 # -
 
 # ## The study
@@ -149,85 +172,160 @@ def value_at_origin(u: fem.Function) -> float:
 # of $2 h_0$; each is conformed to the disc once and curved for every variant.
 
 # +
-variants = {
+VARIANTS = {
     "I_true_tangent": ("I", 2, "true"),
     "G_true_tangent": ("G", 4, "true"),
     "I_discrete_tangent": ("I", 2, "discrete"),
 }
-disc = du.Circle((0.0, 0.0), R)
-h0 = 0.28 * R
-levels = 2 if args.quick else 4
-margin = R + 2 * h0
-rows = []
-finest = None
-t_start = time.perf_counter()
-for level in range(levels):
-    h = h0 / 2**level
-    background = du.equilateral_mesh(comm, [[-margin, -margin], [margin, margin]], h)
-    cm = du.conform(background, disc)
-    for name, (map_, degree, tangent) in variants.items():
-        t0 = time.perf_counter()
-        curved = du.curved_mesh(cm, degree, map_)
-        uh, slip = solve_plate(curved, tangent)
-        dofmap = uh.function_space.dofmap
-        ndofs = dofmap.index_map.size_global * dofmap.index_map_bs
-        single, double = slip.num_constrained
-        w_h = uh.sub(1).collapse()
-        wc = value_at_origin(w_h)
-        rows.append({"variant": name, "level": level, "h": h, "n_dofs": ndofs, "w_center": wc})
-        log(f"level {level} h={h:.4f} {name:19s} dofs={ndofs:6d} nodes={single:3d}+{double:3d} "
-            f"w(0)={wc:.6f} error={wc - w_exact:+.2e} ({time.perf_counter() - t0:.1f} s)")
-        if name == "I_true_tangent" and level == levels - 1:
-            finest = w_h
-log(f"study took {time.perf_counter() - t_start:.1f} s")
+H0 = 0.28 * R
+MARGIN = R + 2 * H0
+
+
+def study(comm: MPI.Comm, levels: int):
+    """Centre deflections of every variant and level; the finest ``I_true_tangent`` ``w``
+    and the last conforming mesh."""
+    disc = du.Circle((0.0, 0.0), R)
+    rows = []
+    t_start = time.perf_counter()
+    for level in range(levels):
+        h = H0 / 2**level
+        background = du.equilateral_mesh(comm, [[-MARGIN, -MARGIN], [MARGIN, MARGIN]], h)
+        cm = du.conform(background, disc)
+        for name, (map_, degree, tangent) in VARIANTS.items():
+            t0 = time.perf_counter()
+            curved = du.curved_mesh(cm, degree, map_)
+            uh, slip = solve_plate(curved, tangent)
+            dofmap = uh.function_space.dofmap
+            ndofs = dofmap.index_map.size_global * dofmap.index_map_bs
+            single, double = slip.num_constrained
+            w_h = uh.sub(1).collapse()
+            wc = value_at_origin(w_h)
+            rows.append({"variant": name, "level": level, "h": h, "n_dofs": ndofs, "w_center": wc})
+            log(
+                comm,
+                f"level {level} h={h:.4f} {name:19s} dofs={ndofs:6d} "
+                f"nodes={single:3d}+{double:3d} w(0)={wc:.6f} error={wc - w_exact:+.2e} "
+                f"({time.perf_counter() - t0:.1f} s)",
+            )
+            if name == "I_true_tangent":
+                finest = w_h
+    log(comm, f"study took {time.perf_counter() - t_start:.1f} s")
+    return rows, finest, cm
+
+
 # -
 
 # ## Figures
 #
-# The deflection on the finest `I_true_tangent` mesh (the P2 nodal values, triangulated), and
-# the centre deflection against $h$ for the three variants with the exact value (left) and
-# its relative error (right).
+# The deflection on the finest `I_true_tangent` mesh (the P2 nodal values, triangulated),
+# and the centre deflection against $h$ for the three variants with the exact and the
+# clamped values (left) and its relative error (right). The figures are drawn on rank 0
+# with matplotlib's object interface (no pyplot state, no backend to choose).
+
 
 # +
-Q = finest.function_space
-n_owned = Q.dofmap.index_map.size_local
-xs = comm.gather(Q.tabulate_dof_coordinates()[:n_owned, :2], root=0)
-ws = comm.gather(finest.x.array[:n_owned].copy(), root=0)
-if comm.rank == 0:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def deflection_figure(comm: MPI.Comm, w_h: fem.Function, level: int, path: Path) -> None:
+    Q = w_h.function_space
+    n_owned = Q.dofmap.index_map.size_local
+    xs = comm.gather(Q.tabulate_dof_coordinates()[:n_owned, :2], root=0)
+    ws = comm.gather(w_h.x.array[:n_owned].copy(), root=0)
+    if comm.rank != 0:
+        return
     import matplotlib.tri as mtri
+    from matplotlib.figure import Figure
 
     xy, wv = np.concatenate(xs), np.concatenate(ws)
-    fig, ax = plt.subplots(figsize=(5.6, 4.8))
+    fig = Figure(figsize=(5.8, 4.8), layout="constrained")
+    ax = fig.subplots()
     tc = ax.tricontourf(mtri.Triangulation(xy[:, 0], xy[:, 1]), wv, levels=20, cmap="viridis")
-    fig.colorbar(tc, ax=ax, label="w")
+    fig.colorbar(tc, ax=ax, label="deflection w")
     ax.set_aspect("equal")
-    ax.set_title(f"deflection, I_true_tangent, level {levels - 1}")
-    fig.savefig(args.out / "deflection.png", dpi=150, bbox_inches="tight")
-    plt.close(fig)
+    ax.set_xlabel("x"), ax.set_ylabel("y")
+    ax.set_title(f"deflection, I_true_tangent, level {level}")
+    save(fig, path)
 
-    fig, (ax, ax_err) = plt.subplots(1, 2, figsize=(11, 4.2))
-    for name in variants:
+
+def w_center_figure(rows: list[dict], path: Path) -> None:
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(11.5, 4.4), layout="constrained")
+    ax, ax_err = fig.subplots(1, 2)
+    for name, marker in zip(VARIANTS, ("o", "s", "^")):
         sel = [r for r in rows if r["variant"] == name]
         hs = np.array([r["h"] for r in sel])
         wc = np.array([r["w_center"] for r in sel])
-        ax.semilogx(hs, wc, "o-", label=name)
-        ax_err.loglog(hs, np.abs(wc - w_exact) / w_exact, "o-", label=name)
+        ax.semilogx(hs, wc, marker + "-", label=name)
+        ax_err.loglog(hs, np.abs(wc - w_exact) / w_exact, marker + "-", label=name)
     ax.axhline(w_exact, color="k", ls=":", lw=1, label=f"exact {w_exact:.5f}")
     ax.axhline(w_clamped, color="0.5", ls="--", lw=1, label=f"clamped plate {w_clamped:.5f}")
-    ax.set_ylabel("w(0, 0)")
+    ax.set_ylabel("centre deflection w(0, 0)")
+    ax.set_title("centre deflection")
     ax_err.set_ylabel("|w(0, 0) - exact| / exact")
+    ax_err.set_title("relative error of the centre deflection")
     for a in (ax, ax_err):
-        a.set_xlabel("h")
+        a.set_xticks(hs, [f"{h:.3g}" for h in hs])
+        a.set_xticks([], minor=True)
+        a.set_xlabel("mesh size h")
         a.grid(True, which="both", lw=0.3)
-    ax.legend()
-    fig.savefig(args.out / "w_center.png", dpi=150, bbox_inches="tight")
-    plt.close(fig)
-    (args.out / "summary.json").write_text(json.dumps({"rows": rows}, indent=2))
-    print(f"wrote {args.out}/summary.json, deflection.png, w_center.png")
+        a.legend(fontsize=8)
+    save(fig, path)
+
+
+# -
+
+# ## The whole study
+#
+# `main` runs the study, draws the figures and writes `summary.json`: the centre
+# deflections (`rows`), the set-up (`parameters`), the exact and clamped centre
+# deflections compared with (`reference`), and the versions and number of ranks.
+
+
+# +
+def main(argv: Sequence[str] | None = None) -> dict:
+    """Run the study (``argv``: command-line options, ``None`` for ``sys.argv``)."""
+    args = demo_options("Reissner-Mindlin plate with slip constraints", "out/plate", argv)
+    comm = MPI.COMM_WORLD
+    levels = 2 if args.quick else 4
+    log(comm, f"exact centre deflection w(0) = {w_exact:.6f} (clamped plate: {w_clamped:.6f})")
+
+    rows, finest, cm = study(comm, levels)
+    deflection_figure(comm, finest, levels - 1, args.out / "deflection.png")
+    if comm.rank == 0:
+        w_center_figure(rows, args.out / "w_center.png")
+
+    parameters = {
+        "quick": args.quick,
+        "R": R,
+        "tau": tau,
+        "lambda": lam,
+        "mu": mu,
+        "p": p,
+        "elements": "P2 rotations, P2 deflection",
+        "background": "equilateral, square of half-side R + 2 h0",
+        "h0": H0,
+        "h": [H0 / 2**level for level in range(levels)],
+        "variants": {
+            name: {"map": m, "geometry_degree": q, "tangent": t}
+            for name, (m, q, t) in VARIANTS.items()
+        },
+        "eta": cm.eta,
+        "alpha": cm.alpha,
+        "R_r_over_h": comm.allreduce(float(np.max(cm.R_r / cm.h, initial=0.0)), op=MPI.MAX),
+    }
+    reference = {
+        "w_center_exact": w_exact,
+        "w_center_exact_formula": "p (R^4 + R^2 tau^2) / (4 tau^3) = 17 p R for tau = R/4",
+        "w_center_clamped": w_clamped,
+        "w_center_clamped_formula": "f R^4 / (64 (lambda + 2 mu)) + f R^2 / (4 k), "
+        "f = 12 p / tau^3, k = 12 mu / tau^2",
+    }
+    results = {"rows": rows}
+    path = write_summary(comm, args.out, results, parameters=parameters, reference=reference)
+    log(comm, f"wrote {path}, deflection.png, w_center.png")
+    check(comm, rows, levels)
+    return results
+
+
 # -
 
 # ## Checks
@@ -235,19 +333,31 @@ if comm.rank == 0:
 # With the true tangent the centre deflection converges (successive differences shrink) to
 # the exact value; with the discrete tangent it stays away from it.
 
+
 # +
-w = {name: np.array([r["w_center"] for r in rows if r["variant"] == name]) for name in variants}
-log("\nlevel " + " ".join(f"{n:>19s}" for n in variants))
-for level in range(levels):
-    log(f"{level:5d} " + " ".join(f"{w[n][level]:19.6f}" for n in variants))
-for name in ("I_true_tangent", "G_true_tangent"):
-    steps = np.abs(np.diff(w[name]))
-    assert np.all(steps[1:] < 0.5 * steps[:-1]), (name, steps)
-    assert abs(w[name][-1] - w_exact) < 1e-3 * w_exact, (name, w[name][-1], w_exact)
-spread = np.abs(w["I_true_tangent"] - w["G_true_tangent"])
-miss = np.abs(w["I_discrete_tangent"] - w["I_true_tangent"])
-assert np.all(miss > 100 * spread) and np.all(miss > 0.25 * w_exact), (miss, spread)
-log(f"true tangents: |w - w_exact| = {abs(w['I_true_tangent'][-1] - w_exact):.1e} (I), "
-    f"{abs(w['G_true_tangent'][-1] - w_exact):.1e} (G); discrete tangent off by "
-    f"{miss[-1] / w_exact:.0%}")
+def check(comm: MPI.Comm, rows: list[dict], levels: int) -> None:
+    w = {n: np.array([r["w_center"] for r in rows if r["variant"] == n]) for n in VARIANTS}
+    log(comm, "\nlevel " + " ".join(f"{n:>19s}" for n in VARIANTS))
+    for level in range(levels):
+        log(comm, f"{level:5d} " + " ".join(f"{w[n][level]:19.6f}" for n in VARIANTS))
+    for name in ("I_true_tangent", "G_true_tangent"):
+        steps = np.abs(np.diff(w[name]))
+        assert np.all(steps[1:] < 0.5 * steps[:-1]), (name, steps)
+        assert abs(w[name][-1] - w_exact) < 1e-3 * w_exact, (name, w[name][-1], w_exact)
+    spread = np.abs(w["I_true_tangent"] - w["G_true_tangent"])
+    miss = np.abs(w["I_discrete_tangent"] - w["I_true_tangent"])
+    assert np.all(miss > 100 * spread) and np.all(miss > 0.25 * w_exact), (miss, spread)
+    log(
+        comm,
+        f"true tangents: |w - w_exact| = {abs(w['I_true_tangent'][-1] - w_exact):.1e} "
+        f"(I), {abs(w['G_true_tangent'][-1] - w_exact):.1e} (G); discrete tangent off by "
+        f"{miss[-1] / w_exact:.0%}",
+    )
+
+
+# -
+
+# +
+if __name__ == "__main__":
+    main([] if "ipykernel" in sys.modules else None)
 # -

@@ -30,22 +30,56 @@ def _same(a, b, rtol: float) -> None:
         assert a == b
 
 
+SUMMARY_KEYS = {"parameters", "reference", "versions", "mpi_size"}
+
+
+def _same_run(serial: dict, parallel: dict, rtol: float) -> None:
+    """Serial and 2-rank summaries agree (all but ``mpi_size``)."""
+    assert (serial.pop("mpi_size"), parallel.pop("mpi_size")) == (1, 2)
+    _same(serial, parallel, rtol)
+
+
 def test_quality_demo(tmp_path):
     serial = _run("quality.py", 1, tmp_path / "s")
-    assert {"circle", "spline"} == serial.keys()
-    keys = {"h_over_R", "eta", "n_cells", "n_positively_cut", "theta_min_deg", "theta_max_deg",
-            "q_max", "Q3_max", "Q2_max", "Q1_max"}
+    assert {"circle", "spline"} | SUMMARY_KEYS == serial.keys()
+    assert serial["parameters"]["quick"] is True
+    assert serial["parameters"]["R_r_over_h"] == pytest.approx(3.0)
+    assert serial["parameters"]["alpha"] == pytest.approx(0.75)
+    assert serial["reference"]["Q2_max"] == pytest.approx(2 * 13**0.5 / 3)
+    keys = {
+        "h_over_R",
+        "eta",
+        "n_cells",
+        "n_positively_cut",
+        "theta_min_deg",
+        "theta_max_deg",
+        "q_max",
+        "Q3_max",
+        "Q2_max",
+        "Q1_max",
+    }
     assert all(set(r) == keys for r in serial["circle"])
-    keys = {"level", "eta", "n_cells", "n_positively_cut", "percent_unaltered",
-            "theta_min_deg", "theta_max_deg", "q_max"}
+    keys = {
+        "level",
+        "eta",
+        "n_cells",
+        "n_positively_cut",
+        "percent_unaltered",
+        "theta_min_deg",
+        "theta_max_deg",
+        "q_max",
+    }
     assert all(set(r) == keys for r in serial["spline"])
     for name in ("circle_meshes.png", "circle_quality.png", "spline_meshes.png"):
         assert (tmp_path / "s" / name).stat().st_size > 10_000
-    _same(serial, _run("quality.py", 2, tmp_path / "p"), rtol=1e-12)
+    _same_run(serial, _run("quality.py", 2, tmp_path / "p"), rtol=1e-12)
 
 
 def test_poisson_demo(tmp_path):
     serial = _run("poisson_convergence.py", 1, tmp_path / "s")
+    assert {"rows", "rates"} | SUMMARY_KEYS == serial.keys()
+    assert serial["parameters"]["degrees"] == [1, 2, 3, 4]
+    assert serial["reference"]["optimal_rates"][0] == {"k": 1, "L2": 2, "H1": 1}
     rows = serial["rows"]
     assert {r["map"] for r in rows} == {"I", "I~", "G"} and {r["k"] for r in rows} == {1, 2, 3, 4}
     assert set(rows[0]) == {"map", "k", "geometry_degree", "h", "n_cells", "L2", "H1"}
@@ -56,6 +90,7 @@ def test_poisson_demo(tmp_path):
     for name in ("convergence_L2.png", "convergence_H1.png", "closeup_k2.png", "closeup_k3.png"):
         assert (tmp_path / "s" / name).stat().st_size > 10_000
     parallel = _run("poisson_convergence.py", 2, tmp_path / "p")
+    assert parallel["parameters"] == serial["parameters"] and parallel["mpi_size"] == 2
     # Same meshes, same discrete problems: errors agree to solver rounding (relative to the
     # error itself, which reaches 1e-11 for k = 4).
     for a, b in zip(rows, parallel["rows"]):

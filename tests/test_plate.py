@@ -31,14 +31,15 @@ def summaries(tmp_path_factory):
 
 def table(summary: dict) -> dict[str, np.ndarray]:
     return {
-        v: np.array([r["w_center"] for r in summary["rows"] if r["variant"] == v])
-        for v in VARIANTS
+        v: np.array([r["w_center"] for r in summary["rows"] if r["variant"] == v]) for v in VARIANTS
     }
 
 
 def test_summary_format(summaries):
     for summary in summaries.values():
-        assert list(summary) == ["rows"]
+        assert list(summary) == ["rows", "parameters", "reference", "versions", "mpi_size"]
+        assert summary["parameters"]["quick"] is True and summary["parameters"]["R"] == 3.142
+        assert summary["reference"]["w_center_exact"] == pytest.approx(W_EXACT, rel=1e-12)
         assert len(summary["rows"]) == 2 * len(VARIANTS)
         for row in summary["rows"]:
             assert set(row) == {"variant", "level", "h", "n_dofs", "w_center"}
@@ -48,6 +49,8 @@ def test_summary_format(summaries):
 
 @pytest.mark.mpi
 def test_serial_and_parallel_agree(summaries):
+    assert (summaries[1]["mpi_size"], summaries[2]["mpi_size"]) == (1, 2)
+    assert summaries[1]["parameters"] == summaries[2]["parameters"]
     for a, b in zip(summaries[1]["rows"], summaries[2]["rows"]):
         assert (a["variant"], a["level"], a["n_dofs"]) == (b["variant"], b["level"], b["n_dofs"])
         assert abs(a["w_center"] - b["w_center"]) < 1e-8 * abs(a["w_center"])
