@@ -7,6 +7,7 @@ except ImportError:  # DOLFINx from the official Docker images or conda
 
 from importlib.metadata import PackageNotFoundError, version
 
+from . import io
 from .background import equilateral_mesh, refine_uniform
 from .boundaries import (
     Boundary,
@@ -22,7 +23,6 @@ from .classify import conditioning_angle, positive_edges, positively_cut
 from .conform import IMMERSED, OUTER, ConformingMesh, UniversalMesh, conform
 from .constraints import SlipConstraint
 from .curved import CurvedMesh, boundary_dof_data, curved_mesh
-from . import io
 from .domain import Certificate, MeshedDomain, mesh_domain
 from .graded import graded_mesh
 from .moving import MovingDomain

@@ -752,7 +752,7 @@ class ParametricCurve(Boundary):
     @cached_property
     def _samples(self) -> tuple[Float, Float, cKDTree, Int, Int, float]:
         n = self.n_samples
-        t = np.arange(n) * (self.period / n)
+        t = np.arange(n, dtype=np.float64) * (self.period / n)
         p = np.asarray(self.point(t), dtype=np.float64)
         if not np.isfinite(p).all():
             raise ValueError(f"{type(self).__name__}: the curve has non-finite points")
@@ -831,7 +831,7 @@ class ParametricCurve(Boundary):
         return self.point(np.mod(np.interp(u, s, np.append(t, self.period)), self.period))
 
     def min_radius_of_curvature(self) -> float:
-        t = np.arange(4 * self.n_samples) * (self.period / (4 * self.n_samples))
+        t = np.arange(4 * self.n_samples, dtype=np.float64) * (self.period / (4 * self.n_samples))
         d1, d2 = self.derivative(t), self.second_derivative(t)
         kappa = np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / _norm(d1) ** 3
         return float(1 / kappa.max()) if kappa.max() > 0 else np.inf
@@ -900,7 +900,7 @@ class PeriodicSpline(ParametricCurve):
     def _check_simple(self) -> None:
         """Raise if non-adjacent edges of a dense polyline of the spline intersect."""
         m = max(self.n_samples, 16 * len(self.points))
-        a = self.point(np.arange(m) * (self.period / m))
+        a = self.point(np.arange(m, dtype=np.float64) * (self.period / m))
         b = np.roll(a, -1, axis=0)
         pairs = cKDTree((a + b) / 2).query_pairs(float(_norm(b - a).max()), output_type="ndarray")
         i, j = pairs[:, 0], pairs[:, 1]
@@ -1003,7 +1003,7 @@ class PolarCurve(ParametricCurve):
         self.r, self.dr, self.d2r = r, dr, d2r
         self.center = _vector(center, "center")
         self.period = 2 * np.pi
-        th = np.arange(self.n_samples) * (2 * np.pi / self.n_samples)
+        th = np.arange(self.n_samples, dtype=np.float64) * (2 * np.pi / self.n_samples)
         rv = _call(r, th, th.shape)
         bad = np.flatnonzero(~(np.isfinite(rv) & (rv > 0)))
         if bad.size:
@@ -1283,7 +1283,8 @@ class Domain(Boundary):
         return out
 
     def _lower_bound(self, x: Float) -> Float:
-        return np.min([b._lower_bound(x) for b, _ in self.components], axis=0)
+        bounds: list[Float] = [b._lower_bound(x) for b, _ in self.components]
+        return np.min(bounds, axis=0)
 
     def bounding_box(self) -> Float:
         boxes = np.array([b.bounding_box() for b, _ in self.components])

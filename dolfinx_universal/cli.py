@@ -493,8 +493,8 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
     from .conform import IMMERSED, OUTER, conform
     from .curved import curved_mesh
     from .demo_support import versions
-    from .io import tags_path, write_mesh
     from .domain import _auto_box, mesh_domain
+    from .io import tags_path, write_mesh
     from .quality import quality_report
     from .validation import MeshingError
 

@@ -359,7 +359,7 @@ class SlipConstraint:
                 self._global(cols).astype(PETSc.IntType),
                 vals.astype(PETSc.ScalarType),
             ),
-            comm=self.comm,
+            comm=self.comm,  # type: ignore[arg-type]  # petsc4py accepts an mpi4py Comm
         )
         R.assemble()
         return R
@@ -427,6 +427,7 @@ class SlipConstraint:
         b = fem_petsc.assemble_vector(L)
         b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         R = self.rotation
+        assert R is not None  # set by update() in __init__
         Ar = A.PtAP(R)
         A.destroy()
         br = b.duplicate()
@@ -478,21 +479,22 @@ class SlipConstraint:
         options = DEFAULT_PETSC_OPTIONS if petsc_options is None else petsc_options
         opts = PETSc.Options()
         for key, val in options.items():
-            opts[f"{self._prefix}{key}"] = val
-        ksp = PETSc.KSP().create(self.comm)
+            opts[f"{self._prefix}{key}"] = val  # type: ignore[index]  # stubs lack __setitem__
+        ksp = PETSc.KSP().create(self.comm)  # type: ignore[arg-type]  # accepts an mpi4py Comm
         ksp.setOperators(A)
         ksp.setOptionsPrefix(self._prefix)
         ksp.setFromOptions()
         for key in options:
-            del opts[f"{self._prefix}{key}"]
+            del opts[f"{self._prefix}{key}"]  # type: ignore[attr-defined]  # stubs lack __delitem__
         y = b.duplicate()
         ksp.solve(b, y)
         reason = ksp.getConvergedReason()
+        assert self.rotation is not None  # set by update() in __init__
         self.rotation.mult(y, u.x.petsc_vec)
         u.x.scatter_forward()
         for obj in (ksp, A, b, y):
             obj.destroy()
-        if reason < 0:
+        if reason < 0:  # type: ignore[operator]  # stubs type the int reason as a class
             raise RuntimeError(f"linear solve failed (KSP converged reason {reason})")
         return u
 
@@ -520,5 +522,6 @@ class SlipConstraint:
         )
 
     def __del__(self) -> None:
-        if getattr(self, "rotation", None) is not None:
-            self.rotation.destroy()
+        rotation = getattr(self, "rotation", None)  # unset if __init__ failed early
+        if rotation is not None:
+            rotation.destroy()

@@ -66,10 +66,14 @@ def transfinite_map(
     m_w: Float,
     closest_point: Callable[[Float], Float],
 ) -> Float:
-    """The transfinite blend of SPEC §4 at barycentric points of positively cut cells.
+    """The exactly conforming transfinite blend of Rangarajan & Lew (2014) at barycentric
+    points of positively cut cells.
 
-    ``G(x) = [l_v pi(l_u a + (1-l_u) b) + l_u l_w pi_u] / (2 (1 - l_u))
-           + [l_u pi((1-l_v) a + l_v b) + l_v l_w pi_v] / (2 (1 - l_v)) + l_w m_w``
+    The blend::
+
+        G(x) = [l_v pi(l_u a + (1-l_u) b) + l_u l_w pi_u] / (2 (1 - l_u))
+             + [l_u pi((1-l_v) a + l_v b) + l_v l_w pi_v] / (2 (1 - l_v)) + l_w m_w
+
     with ``(a, b)`` the edge end points: the background vertices ``(u, v)`` for ``G_h``, their
     images ``(pi(u), pi(v))`` for ``G~_h``. Vertex limits are exact (no 0/0).
 

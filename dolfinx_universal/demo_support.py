@@ -42,11 +42,12 @@ def log(comm: MPI.Comm, *args: object) -> None:
 
 def versions() -> dict[str, str]:
     """Versions of this package, DOLFINx, basix, UFL, PETSc, NumPy, MPI and Python."""
+    from petsc4py import PETSc
+
     import basix
     import dolfinx
     import numpy as np
     import ufl
-    from petsc4py import PETSc
 
     from . import __version__
 

@@ -144,7 +144,8 @@ def check_components(boundary: Boundary, n: int = 2048) -> None:
                 raise MeshingError(
                     f"{what} near {where(pts[bad])}: the bodies of a Domain must lie inside the "
                     "container, apart from each other and from it",
-                    pts[bad], refinable=False,
+                    pts[bad],
+                    refinable=False,
                 )
 
 
@@ -270,7 +271,9 @@ def _sizing(
         if out.any():
             raise MeshingError(
                 f"the domain's boundary leaves the given box {box_arr.tolist()} near "
-                f"{where(points[out])}: enlarge the box", points[out], refinable=False,
+                f"{where(points[out])}: enlarge the box",
+                points[out],
+                refinable=False,
             )
         # The band of width R_r must stay off the box boundary: size by the distance to it.
         gap = np.minimum(points - box_arr[0], box_arr[1] - points).min(axis=1)
@@ -300,13 +303,13 @@ def mesh_domain(
     medial axis, which accounts for curvature, thin parts, necks and gaps between parts of
     the boundary) divided by a factor that grows with the geometry degree
     (:func:`~dolfinx_universal.sizing.target_sizes`). Away from Gamma the size grows by
-    :data:`GRADATION` per unit length up to ``h``. The background is then conformed (SPEC
-    §2-3 with ``local_size``), curved (SPEC §4) and checked: conditioning angles, inverted
-    straight or curved cells (a proof with Bernstein coefficients), one Gamma_h loop per
-    curve of Gamma on the domain's side, the quality floor ``min_angle``. Where a check
-    fails the background is refined locally (the size halved around the places named by the
-    check) and the domain meshed again, at most ``max_rounds`` times. The same mesh comes out
-    on any number of ranks.
+    :data:`GRADATION` per unit length up to ``h``. The background is then conformed (the
+    straight map ``M_h`` with ``local_size``), curved (the maps ``G_h`` / ``I_h``) and
+    checked: conditioning angles, inverted straight or curved cells (a proof with Bernstein
+    coefficients), one Gamma_h loop per curve of Gamma on the domain's side, the quality
+    floor ``min_angle``. Where a check fails the background is refined locally (the size
+    halved around the places named by the check) and the domain meshed again, at most
+    ``max_rounds`` times. The same mesh comes out on any number of ranks.
 
     Parameters
     ----------
@@ -365,7 +368,12 @@ def mesh_domain(
 
     t = time.perf_counter()
     box_arr, field_, feature, rho = size_from_geometry(
-        comm, [boundary], h, degree=degree, box=box, relaxation_factor=relaxation_factor,
+        comm,
+        [boundary],
+        h,
+        degree=degree,
+        box=box,
+        relaxation_factor=relaxation_factor,
         size_factor=size_factor,
     )
     points = field_.points
@@ -380,11 +388,15 @@ def mesh_domain(
             raise MeshingError(
                 f"the geometry asks for about {estimate:.3g} background cells (more than "
                 f"max_cells = {max_cells:.3g}): the smallest size needed is "
-                f"{current[i]:.3g} near {where(points[i:i + 1])}"
-                + (f" after {len(rounds)} refinement rounds ({'; '.join(rounds)})" if rounds
-                   else "")
+                f"{current[i]:.3g} near {where(points[i : i + 1])}"
+                + (
+                    f" after {len(rounds)} refinement rounds ({'; '.join(rounds)})"
+                    if rounds
+                    else ""
+                )
                 + "; raise max_cells or simplify the geometry there",
-                points[i:i + 1], refinable=False,
+                points[i : i + 1],
+                refinable=False,
             )
         t = time.perf_counter()
         background = graded_mesh(comm, box_arr, field_, max_size=h, root_size=h / EDGE_FACTOR)
@@ -392,8 +404,13 @@ def mesh_domain(
         try:
             t = time.perf_counter()
             cm = conform(
-                background, boundary, eta=eta, relaxation_factor=relaxation_factor,
-                local_size=True, min_angle=min_angle, on_low_quality="raise",
+                background,
+                boundary,
+                eta=eta,
+                relaxation_factor=relaxation_factor,
+                local_size=True,
+                min_angle=min_angle,
+                on_low_quality="raise",
             )
             timings["conform"] += time.perf_counter() - t
             t = time.perf_counter()
@@ -407,7 +424,10 @@ def mesh_domain(
             if len(rounds) >= max_rounds:
                 raise MeshingError(
                     f"still failing after {max_rounds} local refinements ("
-                    + "; ".join(rounds) + f"): {e}", e.points, refinable=False,
+                    + "; ".join(rounds)
+                    + f"): {e}",
+                    e.points,
+                    refinable=False,
                 ) from None
             rounds.append(f"round {len(rounds) + 1}: {_short(first)}")
             field_ = field_.refined(e.points, 0.5 * field_(e.points))

@@ -566,12 +566,13 @@ class _Bins:
 
 def _stack(parts: npt.ArrayLike | Sequence[npt.ArrayLike], name: str, ncols: int) -> Float:
     """One array from an array or a sequence of arrays (``(m, 2)`` points, ``(m,)`` sizes)."""
+    seq: list[npt.ArrayLike]
     if isinstance(parts, np.ndarray) or not isinstance(parts, Sequence):
         seq = [parts]
     else:
         try:
             a = np.asarray(parts, dtype=np.float64)
-            seq = [parts] if a.ndim == (2 if ncols else 1) else list(parts)
+            seq = [a] if a.ndim == (2 if ncols else 1) else list(parts)
         except ValueError:  # ragged: several arrays
             seq = list(parts)
     if ncols:

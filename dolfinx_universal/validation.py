@@ -62,7 +62,7 @@ class Problem(NamedTuple):
 
     message: str
     points: npt.NDArray[np.float64] = np.zeros((0, 2))
-    count: int = 1
+    count: int = 1  # type: ignore[assignment]  # field shadows tuple.count (legal at runtime)
     refinable: bool = True
 
 
@@ -83,10 +83,15 @@ def raise_collective(
     ranks (counts added, places concatenated in rank order). This is a collective call:
     every rank must call it, so that no rank is left waiting in a later collective.
     """
-    local = [p if isinstance(p, Problem) else Problem(_literal(p), np.zeros((0, 2)), 0)
-             for p in problems]
-    gathered = comm.allgather([(p.message, np.asarray(p.points, float).reshape(-1, 2),
-                                 p.count, p.refinable) for p in local])
+    local = [
+        p if isinstance(p, Problem) else Problem(_literal(p), np.zeros((0, 2)), 0) for p in problems
+    ]
+    gathered = comm.allgather(
+        [
+            (p.message, np.asarray(p.points, float).reshape(-1, 2), p.count, p.refinable)
+            for p in local
+        ]
+    )
     merged: dict[str, list] = {}
     for msgs in gathered:
         for message, pts, count, refinable in msgs:
@@ -126,9 +131,7 @@ def collective_call(comm: MPI.Comm, what: str, fn: Callable[..., T], *args: Any)
     return result  # type: ignore[return-value]
 
 
-def vertex_reduce(
-    index_map, values: npt.ArrayLike, op: str = "sum"
-) -> npt.NDArray[np.float64]:
+def vertex_reduce(index_map, values: npt.ArrayLike, op: str = "sum") -> npt.NDArray[np.float64]:
     """Combine per-vertex contributions of all ranks, owned and ghost entries alike.
 
     Parameters

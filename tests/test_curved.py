@@ -176,7 +176,7 @@ def _poisson_errors(cm, k, geometry_degree, map_):
     [(1, "I", 0), (2, "I", 0), (3, "I", 0), (2, "I~", 0), (1, "G", 2), (2, "G", 2)],
 )
 def test_poisson_optimal_rates(k, map_, extra):
-    """L2 rate k+1 and H1 rate k (SPEC §7.2), fitted over the three finest of four meshes.
+    """L2 rate k+1 and H1 rate k , fitted over the three finest of four meshes.
 
     Tolerance 0.15 below the optimal rate: the boundary cuts each level differently, so the
     rates scatter by about +-0.1 before the asymptotic range; a geometric error that spoils

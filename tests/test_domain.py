@@ -252,3 +252,19 @@ def test_collective_errors_never_hang():
     n = comm.size
     assert str(info.value).startswith(f"{n * (n + 1) // 2} cells are bad near (0, 0), (1, 0)")
     assert len(info.value.points) == n
+
+
+def test_leaving_the_background_is_named_alone():
+    """A domain crossing the background's boundary: that is the error, not a Gamma_h one."""
+    bg = du.equilateral_mesh(comm, [[-1, -1], [1, 1]], 0.1)
+    with pytest.raises(du.MeshingError) as info:
+        du.conform(bg, du.Circle((0.9, 0.0), 0.5))
+    text = str(info.value)
+    assert "leaves the background" in text and "Gamma_h" not in text and "refine" not in text
+    assert not info.value.refinable and np.all(np.abs(info.value.points[:, 0]) > 0.99)
+
+
+def test_curved_mesh_wants_a_conforming_mesh():
+    cm = du.conform(du.equilateral_mesh(comm, [[-1, -1], [1, 1]], 0.2), du.Circle((0, 0), 0.6))
+    with pytest.raises(TypeError, match="needs the ConformingMesh returned by conform"):
+        du.curved_mesh(cm.mesh, 2)
