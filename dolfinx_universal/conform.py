@@ -162,9 +162,10 @@ class StraightMap:
         Signed distances; ``+-inf`` outside the band near Gamma, ``(num_vertices,)``.
     closest
         Closest points ``pi(x)`` (NaN outside the band), ``(num_vertices, 2)``.
-    x, y
-        Background positions after the eta perturbation and their images ``M_h(x)``,
-        ``(num_vertices, 2)``.
+    x
+        Background positions after the eta perturbation, ``(num_vertices, 2)``.
+    y
+        Their images ``M_h(x)``, ``(num_vertices, 2)``.
     on_positive_edge
         Vertices of positive edges (snapped onto Gamma), ``(num_vertices,)``.
     kept
