@@ -11,7 +11,7 @@ import numpy.typing as npt
 from scipy import ndimage
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
-from .boundaries import Boundary
+from .boundaries import Boundary, _as_points, _cross, _norm, _positive
 
 __all__ = [
     "FEATURE_DIVISOR",
@@ -52,31 +52,9 @@ _GRID_CELLS = 256  # cells of the distance lower-bound grids of a size field (lo
 
 # ----------------------------------------------------------------------------- helpers
 def _points(x: npt.ArrayLike, name: str) -> Float:
-    """``x`` as a finite float64 array ``(n, 2)`` (first two columns of ``(n, 2)``/``(n, 3)``)."""
+    """``x`` as a finite float64 array ``(n, 2)``; a flat empty array is ``(0, 2)``."""
     a = np.asarray(x, dtype=np.float64)
-    if a.ndim == 1 and a.size == 0:
-        a = a.reshape(0, 2)
-    if a.ndim != 2 or a.shape[1] not in (2, 3):
-        raise ValueError(f"{name} must have shape (n, 2) or (n, 3), got {a.shape}")
-    a = np.ascontiguousarray(a[:, :2])
-    if not np.isfinite(a).all():
-        raise ValueError(f"{name} contains non-finite values")
-    return a
-
-
-def _positive(value: float, name: str) -> float:
-    v = float(value)
-    if not (np.isfinite(v) and v > 0):
-        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-    return v
-
-
-def _norm(v: Float) -> Float:
-    return np.sqrt(v[..., 0] ** 2 + v[..., 1] ** 2)
-
-
-def _cross(u: Float, v: Float) -> Float:
-    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+    return _as_points(a.reshape(0, 2) if a.ndim == 1 and a.size == 0 else a, name)
 
 
 def _readonly(a: npt.NDArray[Any]) -> npt.NDArray[Any]:
