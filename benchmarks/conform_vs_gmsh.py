@@ -228,13 +228,23 @@ def calibrate_gmsh(comm: MPI.Comm, size: float = 0.006) -> float:
 
 def main(argv: list[str] | None = None) -> list[dict]:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sizes", type=float, nargs="+", default=[1e4, 1e5, 1e6],
-                        help="target cell counts of the conforming mesh (default 1e4 1e5 1e6)")
+    parser.add_argument(
+        "--sizes",
+        type=float,
+        nargs="+",
+        default=[1e4, 1e5, 1e6],
+        help="target cell counts of the conforming mesh (default 1e4 1e5 1e6)",
+    )
     parser.add_argument("--repeat", type=int, default=3, help="timed repetitions (default 3)")
-    parser.add_argument("--quick", action="store_true",
-                        help="smoke test: sizes 1e4 only, one repetition")
-    parser.add_argument("--gmsh-single-from", type=float, default=5e5,
-                        help="one gmsh repetition only from this target cell count on")
+    parser.add_argument(
+        "--quick", action="store_true", help="smoke test: sizes 1e4 only, one repetition"
+    )
+    parser.add_argument(
+        "--gmsh-single-from",
+        type=float,
+        default=5e5,
+        help="one gmsh repetition only from this target cell count on",
+    )
     parser.add_argument("--out", help="write the table as JSON to this file")
     args = parser.parse_args(argv)
     if args.quick:
@@ -258,12 +268,18 @@ def main(argv: list[str] | None = None) -> list[dict]:
             f"Mesh.MaxNumThreads2D={gmsh.option.getNumber('Mesh.MaxNumThreads2D'):g}, "
             f"Mesh.Algorithm={gmsh.option.getNumber('Mesh.Algorithm'):g}"
         )
-    say(f"disc r={RADIUS} centred at {CENTER} in {BOX}; MPI ranks: {comm.size}; "
-        f"load average {load()}")
-    say(f"gmsh {gmsh.__version__}: OCC disk, generate(2), defaults ({threads}); "
-        "one surface, so 2D meshing runs on one thread")
-    say(f"repeat={args.repeat} (median); conform offsets/h: {OFFSETS[:args.repeat]}; eta={ETA}; "
-        + ("UniversalMesh reused" if UniversalMesh is not None else "conform() per call"))
+    say(
+        f"disc r={RADIUS} centred at {CENTER} in {BOX}; MPI ranks: {comm.size}; "
+        f"load average {load()}"
+    )
+    say(
+        f"gmsh {gmsh.__version__}: OCC disk, generate(2), defaults ({threads}); "
+        "one surface, so 2D meshing runs on one thread"
+    )
+    say(
+        f"repeat={args.repeat} (median); conform offsets/h: {OFFSETS[: args.repeat]}; eta={ETA}; "
+        + ("UniversalMesh reused" if UniversalMesh is not None else "conform() per call")
+    )
 
     # Untimed warm-ups of both pipelines (first-call costs).
     k_gmsh = calibrate_gmsh(comm)
@@ -275,16 +291,21 @@ def main(argv: list[str] | None = None) -> list[dict]:
         say(f"\n-- target {target:.0e} cells: h = {h:.4g}")
         row = {"target_cells": int(target), "h": h, "ranks": comm.size}
         row.update(bench_conform(comm, h, args.repeat))
-        say(f"   background {row['background_cells']} cells built in "
+        say(
+            f"   background {row['background_cells']} cells built in "
             f"{row['background_build_s']:.3f} s, prepared in {row['prepare_s']:.3f} s; "
-            "re-conform totals " + ", ".join(f"{t:.3f}" for t in row["conform_totals_s"])
-            + f" s; one-shot conform() {row['oneshot_conform_s']:.3f} s")
+            "re-conform totals "
+            + ", ".join(f"{t:.3f}" for t in row["conform_totals_s"])
+            + f" s; one-shot conform() {row['oneshot_conform_s']:.3f} s"
+        )
         size = math.sqrt(k_gmsh / row["conform_cells"])
         gmsh_repeat = 1 if target >= args.gmsh_single_from else args.repeat
         row.update(bench_gmsh(comm, size, gmsh_repeat))
-        say(f"   gmsh size {size:.4g}: {row['gmsh_cells']} cells, generate "
+        say(
+            f"   gmsh size {size:.4g}: {row['gmsh_cells']} cells, generate "
             f"{row['gmsh_generate_s']:.3f} s + model_to_mesh {row['gmsh_model_to_mesh_s']:.3f} s"
-            f" ({row['gmsh_repetitions']} repetition(s))")
+            f" ({row['gmsh_repetitions']} repetition(s))"
+        )
         row["ratio_total"] = row["gmsh_total_s"] / row["conform_total_s"]
         row["ratio_generate"] = row["gmsh_generate_s"] / row["conform_total_s"]
         row["ratio_total_cpu"] = row["gmsh_total_cpu_s"] / row["conform_cpu_s"]
@@ -310,18 +331,39 @@ def table(rows: list[dict], ranks: int) -> str:
         return " ".join(f"{c:>{w}}" for c in cells)
 
     lines = [f"Re-conform a moved disc: universal mesh ({ranks} MPI rank(s), max over ranks)"]
-    head = ["target", "h", "bg build", "prepare", "oneshot", "cells", "conform", "classify",
-            "project", "map", "mesh", "conf cpu"]
+    head = [
+        "target",
+        "h",
+        "bg build",
+        "prepare",
+        "oneshot",
+        "cells",
+        "conform",
+        "classify",
+        "project",
+        "map",
+        "mesh",
+        "conf cpu",
+    ]
     units = ["cells", "", "[s]", "[s]", "[s]", "", "[s]", "[s]", "[s]", "[s]", "[s]", "[s]"]
     lines += [line(head), line(units), "-" * (len(head) * (w + 1) - 1)]
     for r in rows:
         st = r["conform_stages_s"]
-        lines.append(line(
-            [f"{r['target_cells']:.0e}", f"{r['h']:.2e}", f"{r['background_build_s']:.3f}",
-             f"{r['prepare_s']:.3f}", f"{r['oneshot_conform_s']:.3f}", r["conform_cells"],
-             f"{r['conform_total_s']:.4f}"] + [f"{st[k]:.4f}" for k in STAGES]
-            + [f"{r['conform_cpu_s']:.4f}"]
-        ))
+        lines.append(
+            line(
+                [
+                    f"{r['target_cells']:.0e}",
+                    f"{r['h']:.2e}",
+                    f"{r['background_build_s']:.3f}",
+                    f"{r['prepare_s']:.3f}",
+                    f"{r['oneshot_conform_s']:.3f}",
+                    r["conform_cells"],
+                    f"{r['conform_total_s']:.4f}",
+                ]
+                + [f"{st[k]:.4f}" for k in STAGES]
+                + [f"{r['conform_cpu_s']:.4f}"]
+            )
+        )
     lines.append(
         "conform = median wall time of re-conforming a moved disc on the reused, prepared "
         "background, split\nby stage (that run's ConformingMesh.timings); conf cpu = its "
@@ -329,20 +371,42 @@ def table(rows: list[dict], ranks: int) -> str:
         "conform(background, circle) timed once: it prepares again\nbut finds the facets that "
         "prepare created on the background (a first call costs ~ prepare + conform)."
     )
-    lines += ["", f"Remesh the disc with gmsh + model_to_mesh ({ranks} MPI rank(s)); "
-              "ratios to the re-conform time"]
-    head = ["target", "gmsh cells", "generate", "to_mesh", "gmsh", "gmsh cpu", "gmsh/conf",
-            "gen/conf", "cpu ratio", "cpu gen"]
+    lines += [
+        "",
+        f"Remesh the disc with gmsh + model_to_mesh ({ranks} MPI rank(s)); "
+        "ratios to the re-conform time",
+    ]
+    head = [
+        "target",
+        "gmsh cells",
+        "generate",
+        "to_mesh",
+        "gmsh",
+        "gmsh cpu",
+        "gmsh/conf",
+        "gen/conf",
+        "cpu ratio",
+        "cpu gen",
+    ]
     units = ["cells", "", "[s]", "[s]", "[s]", "[s]", "wall", "wall", "gmsh/conf", "/conf"]
     lines += [line(head), line(units), "-" * (len(head) * (w + 1) - 1)]
     for r in rows:
-        lines.append(line(
-            [f"{r['target_cells']:.0e}", r["gmsh_cells"], f"{r['gmsh_generate_s']:.3f}",
-             f"{r['gmsh_model_to_mesh_s']:.3f}", f"{r['gmsh_total_s']:.3f}",
-             f"{r['gmsh_total_cpu_s']:.3f}", f"{r['ratio_total']:.1f}",
-             f"{r['ratio_generate']:.1f}", f"{r['ratio_total_cpu']:.1f}",
-             f"{r['ratio_generate_cpu']:.1f}"]
-        ))
+        lines.append(
+            line(
+                [
+                    f"{r['target_cells']:.0e}",
+                    r["gmsh_cells"],
+                    f"{r['gmsh_generate_s']:.3f}",
+                    f"{r['gmsh_model_to_mesh_s']:.3f}",
+                    f"{r['gmsh_total_s']:.3f}",
+                    f"{r['gmsh_total_cpu_s']:.3f}",
+                    f"{r['ratio_total']:.1f}",
+                    f"{r['ratio_generate']:.1f}",
+                    f"{r['ratio_total_cpu']:.1f}",
+                    f"{r['ratio_generate_cpu']:.1f}",
+                ]
+            )
+        )
     lines.append(
         "gmsh = generate(2) + model_to_mesh (wall; the median run; repetitions as logged "
         "above);\ngmsh/conf, gen/conf = wall-time ratios (all of gmsh, generate alone); cpu "

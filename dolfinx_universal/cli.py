@@ -179,9 +179,9 @@ def polar_functions(
     def d2r_fd(t: Float) -> Float:
         t = np.asarray(t, dtype=np.float64)
         d = _FD_STEP
-        return (
-            -r(t + 2 * d) + 16 * r(t + d) - 30 * r(t) + 16 * r(t - d) - r(t - 2 * d)
-        ) / (12 * d * d)
+        return (-r(t + 2 * d) + 16 * r(t + d) - 30 * r(t) + 16 * r(t - d) - r(t - 2 * d)) / (
+            12 * d * d
+        )
 
     def dr_cs(t: Float) -> Float:
         t = np.asarray(t, dtype=np.float64)
@@ -206,9 +206,10 @@ def polar_functions(
         dr, d2r, method = dr_cs, d2r_cs, "complex-step"
 
     scale = float(values.max())
-    if abs(values[0] - values[-1]) > 1e-9 * scale or abs(
-        float(dr(theta[:1])[0]) - float(dr(theta[-1:])[0])
-    ) > 1e-6 * scale:
+    if (
+        abs(values[0] - values[-1]) > 1e-9 * scale
+        or abs(float(dr(theta[:1])[0]) - float(dr(theta[-1:])[0])) > 1e-6 * scale
+    ):
         raise ArgumentError(f"polar expression {expr!r} is not 2*pi-periodic in theta")
     return r, dr, d2r, method
 
@@ -267,8 +268,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--spline",
         metavar="FILE",
         type=Path,
-        help="closed periodic cubic spline through the points of a CSV (x,y per line) or "
-        "JSON file",
+        help="closed periodic cubic spline through the points of a CSV (x,y per line) or JSON file",
     )
     shape.add_argument(
         "--center",
@@ -439,15 +439,18 @@ def _check_numbers(args: argparse.Namespace) -> None:
     if args.alpha is not None:
         lo = 1.0 / (1.0 + 1.0 / args.rr)
         if not (math.isfinite(args.alpha) and lo - 1e-12 <= args.alpha <= 1.0):
-            raise ArgumentError(f"--alpha must lie in [(1 + 1/rr)^-1, 1] = [{lo:.4g}, 1], "
-                                f"got {args.alpha}")
+            raise ArgumentError(
+                f"--alpha must lie in [(1 + 1/rr)^-1, 1] = [{lo:.4g}, 1], got {args.alpha}"
+            )
     if args.degree < 1:
         raise ArgumentError(f"--degree must be >= 1, got {args.degree}")
     if not (math.isfinite(args.min_angle) and 0 <= args.min_angle < 60):
         raise ArgumentError(f"--min-angle must lie in [0, 60) degrees, got {args.min_angle}")
     if args.alpha is not None and not args.uniform:
-        raise ArgumentError("--alpha applies to --uniform only (graded backgrounds use the "
-                            "local default (1 + h/R_r)^-1)")
+        raise ArgumentError(
+            "--alpha applies to --uniform only (graded backgrounds use the "
+            "local default (1 + h/R_r)^-1)"
+        )
 
 
 # --------------------------------------------------------------------------------------------
@@ -539,8 +542,14 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
             background = equilateral_mesh(comm, box.tolist(), h)
             timings["background"] = time.perf_counter() - t
             t = time.perf_counter()
-            cm = conform(background, boundary, alpha=args.alpha, eta=args.eta,
-                         relaxation_factor=args.rr, min_angle=args.min_angle)
+            cm = conform(
+                background,
+                boundary,
+                alpha=args.alpha,
+                eta=args.eta,
+                relaxation_factor=args.rr,
+                min_angle=args.min_angle,
+            )
             timings["conform"] = time.perf_counter() - t
             msh, tags = cm.mesh, cm.facet_tags
             if args.degree > 1:
@@ -551,9 +560,15 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
                 timings["curved"] = time.perf_counter() - t
         else:
             md = mesh_domain(
-                comm, boundary, h, degree=args.degree, map=args.map,
-                box=box if args.margin is not None else None, eta=args.eta,
-                relaxation_factor=args.rr, min_angle=args.min_angle,
+                comm,
+                boundary,
+                h,
+                degree=args.degree,
+                map=args.map,
+                box=box if args.margin is not None else None,
+                eta=args.eta,
+                relaxation_factor=args.rr,
+                min_angle=args.min_angle,
             )
             cm, msh, tags, background = md.conforming, md.mesh, md.facet_tags, md.background
             certificate = md.certificate
@@ -673,8 +688,12 @@ def _have_matplotlib(comm: MPI.Comm) -> bool:
 
     ok = comm.bcast(importlib.util.find_spec("matplotlib") is not None, root=0)
     if not ok and comm.rank == 0:
-        print(f"{PROG}: warning: matplotlib is not installed, mesh.png is not written "
-              "(pip install dolfinx_universal[plot])", file=sys.stderr, flush=True)
+        print(
+            f"{PROG}: warning: matplotlib is not installed, mesh.png is not written "
+            "(pip install dolfinx_universal[plot])",
+            file=sys.stderr,
+            flush=True,
+        )
     return ok
 
 

@@ -265,9 +265,7 @@ def curved_mesh(
     if int(degree) != degree or degree < 1:
         raise ValueError(f"geometry degree must be an integer >= 1, got {degree}")
     kind = "G" if map in ("I", "G") else "G~"
-    ce = fem.coordinate_element(
-        dmesh.CellType.triangle, degree, basix.LagrangeVariant.gll_warped
-    )
+    ce = fem.coordinate_element(dmesh.CellType.triangle, degree, basix.LagrangeVariant.gll_warped)
     msh = fem.interpolate_geometry(cm.mesh, ce)
     nodes = collective_call(msh.comm, "the curved map", _cell_nodes, cm, degree, kind)
     dofmap = msh.geometry.dofmaps[0]
@@ -276,17 +274,21 @@ def curved_mesh(
     pc = np.flatnonzero(cm.positively_cut)
     ratio = (
         jacobian_ratio(nodes[pc], degree, threshold=min_ratio)
-        if degree > 1 and len(pc) else np.ones(0)
+        if degree > 1 and len(pc)
+        else np.ones(0)
     )
     bad = ratio <= min_ratio
     problems = []
     if bad.any():
-        problems.append(Problem(
-            "{count} curved triangles are not proven valid (det J / det J_straight >= "
-            f"{min_ratio:g} fails) near " + "{where}: the background is too coarse for the "
-            "boundary's curvature there; refine near those points",
-            nodes[pc[bad]].mean(axis=1), int(bad.sum()),
-        ))
+        problems.append(
+            Problem(
+                "{count} curved triangles are not proven valid (det J / det J_straight >= "
+                f"{min_ratio:g} fails) near " + "{where}: the background is too coarse for the "
+                "boundary's curvature there; refine near those points",
+                nodes[pc[bad]].mean(axis=1),
+                int(bad.sum()),
+            )
+        )
     raise_collective(msh.comm, problems)
     local_min = float(ratio.min()) if len(ratio) else 1.0
     tags = dmesh.meshtags(msh, 1, cm.facet_tags.indices, cm.facet_tags.values)

@@ -29,8 +29,13 @@ def test_equilateral_triangulation(h):
     _, count = np.unique(e, axis=0, return_counts=True)
     assert set(count) == {1, 2}
     # The box is covered: its corners and random points lie in some triangle.
-    pts = np.vstack([box, [[box[0, 0], box[1, 1]], [box[1, 0], box[0, 1]]],
-                     np.random.default_rng(0).uniform(box[0], box[1], (200, 2))])
+    pts = np.vstack(
+        [
+            box,
+            [[box[0, 0], box[1, 1]], [box[1, 0], box[0, 1]]],
+            np.random.default_rng(0).uniform(box[0], box[1], (200, 2)),
+        ]
+    )
     p = x[cells]
     d = p[:, [1, 2, 0]] - p
     rel = pts[:, None, None, :] - p[None]
@@ -49,8 +54,10 @@ def test_distributed_mesh_and_refinement():
     assert comm.allreduce(fine.topology.index_map(2).size_local) == 16 * n
     fine.topology.create_connectivity(2, 0)
     c2v = fine.topology.connectivity(2, 0).array.reshape(-1, 3)
-    v2n = np.empty(fine.topology.index_map(0).size_local + fine.topology.index_map(0).num_ghosts,
-                   dtype=np.int32)
+    v2n = np.empty(
+        fine.topology.index_map(0).size_local + fine.topology.index_map(0).num_ghosts,
+        dtype=np.int32,
+    )
     v2n[c2v] = fine.geometry.dofmaps[0]
     x = fine.geometry.x[v2n, :2]
     assert np.allclose(np.degrees(interior_angles(x, c2v)), 60.0)

@@ -93,8 +93,9 @@ def test_straight_map():
     on_pe = np.zeros(len(x), dtype=bool)
     on_pe[np.concatenate([u, v])] = True
     h, Rr, alpha = 0.2, 0.6, 0.75
-    y = classify.straight_map(x, phi, closest, n, on_pe, np.full(len(x), h), np.full(len(x), Rr),
-                              alpha)
+    y = classify.straight_map(
+        x, phi, closest, n, on_pe, np.full(len(x), h), np.full(len(x), Rr), alpha
+    )
     for i in range(len(x)):
         if on_pe[i]:
             f = phi[i]

@@ -64,8 +64,10 @@ def check_summary(s: dict, shape: str) -> None:
 )
 def test_shapes(mpi_tmp_path, capsys, shape, args):
     out = mpi_tmp_path / "out"
-    args = [str(write_points(mpi_tmp_path / a, a[-4:].lstrip(".")))
-            if a.startswith("points") else a for a in args]
+    args = [
+        str(write_points(mpi_tmp_path / a, a[-4:].lstrip("."))) if a.startswith("points") else a
+        for a in args
+    ]
     assert main([*args, "--out", str(out)]) == 0
     captured = capsys.readouterr()
     assert captured.err == ""
@@ -105,7 +107,9 @@ def test_curved_outputs(mpi_tmp_path):
 
     m4, t4 = read_mesh(comm, out4 / "mesh.vtkhdf")
     s4 = read_summary(out4)
-    assert m4.geometry.cmaps[0].degree == 4 and m4.topology.index_map(2).size_global == s4["n_cells"]
+    assert (
+        m4.geometry.cmaps[0].degree == 4 and m4.topology.index_map(2).size_global == s4["n_cells"]
+    )
     nf = m4.topology.index_map(1).size_local
     assert comm.allreduce(int((t4.find(1) < nf).sum())) == s4["facets"]["counts"]["immersed"]
 
@@ -121,8 +125,20 @@ def test_help(capsys):
     assert main(["--help"]) == 0
     text = capsys.readouterr().out
     if comm.rank == 0:
-        for option in ("--circle", "--ellipse", "--polar", "--spline", "--h", "--margin",
-                       "--eta", "--rr", "--alpha", "--degree", "--map", "--out"):
+        for option in (
+            "--circle",
+            "--ellipse",
+            "--polar",
+            "--spline",
+            "--h",
+            "--margin",
+            "--eta",
+            "--rr",
+            "--alpha",
+            "--degree",
+            "--map",
+            "--out",
+        ):
             assert option in text
         assert "default: 0.2" in text
 
@@ -292,7 +308,9 @@ def test_without_matplotlib(tmp_path, capsys, monkeypatch):
 
     real = importlib.util.find_spec
     monkeypatch.setattr(
-        importlib.util, "find_spec", lambda name, *a: None if name == "matplotlib" else real(name, *a)
+        importlib.util,
+        "find_spec",
+        lambda name, *a: None if name == "matplotlib" else real(name, *a),
     )
     assert main(["--circle", "1", "--out", str(tmp_path)]) == 0
     assert "matplotlib is not installed" in capsys.readouterr().err

@@ -108,8 +108,10 @@ def _fingerprints(c: MPI.Comm) -> dict:
     r = 1 + 0.25 * np.sin(2 * t) + 0.1 * np.cos(5 * t)
     cases = {
         "circle": (du.conform(bg, du.Circle((0.013, -0.021), 1.0), eta=0.2), 3),
-        "spline": (du.conform(bg, du.PeriodicSpline(np.column_stack([r * np.cos(t),
-                                                                     r * np.sin(t)]))), 2),
+        "spline": (
+            du.conform(bg, du.PeriodicSpline(np.column_stack([r * np.cos(t), r * np.sin(t)]))),
+            2,
+        ),
         "holed": (du.conform(bg, du.Domain(None, [du.Circle((0.2, 0.1), 0.5)])), 2),
     }
     out = {}
@@ -123,8 +125,10 @@ def _fingerprints(c: MPI.Comm) -> dict:
             "nodes": _sorted_points(cv.mesh),
             "area": c.allreduce(fem.assemble_scalar(fem.form(1.0 * ufl.dx(cv.mesh)))),
             "length": c.allreduce(fem.assemble_scalar(fem.form(1.0 * ds(du.IMMERSED)))),
-            "facets": [c.allreduce(int((cm.facet_tags.find(v) < nfo).sum()))
-                       for v in (du.IMMERSED, du.OUTER)],
+            "facets": [
+                c.allreduce(int((cm.facet_tags.find(v) < nfo).sum()))
+                for v in (du.IMMERSED, du.OUTER)
+            ],
         }
     return out
 
@@ -194,8 +198,10 @@ def test_error_inverted_cell():
     triangles whose apex lies just above it: snapping the apex inverts the triangles below it.
     """
     xs = np.linspace(-1, 1, 21)
-    rows = [np.column_stack([xs + (j % 2) * 0.05, np.full_like(xs, y)])
-            for j, y in enumerate([-0.6, -0.3, -0.05, 0.02, 0.3, 0.6])]
+    rows = [
+        np.column_stack([xs + (j % 2) * 0.05, np.full_like(xs, y)])
+        for j, y in enumerate([-0.6, -0.3, -0.05, 0.02, 0.3, 0.6])
+    ]
     x = np.concatenate(rows)
     n = len(xs)
     cells = []

@@ -171,13 +171,16 @@ def test_rotated_system_is_symmetric():
     curved = disc_mesh(0.4)
     msh = curved.mesh
     el = basix.ufl.mixed_element(
-        [basix.ufl.element("Lagrange", "triangle", 2, shape=(2,)),
-         basix.ufl.element("Lagrange", "triangle", 2)]
+        [
+            basix.ufl.element("Lagrange", "triangle", 2, shape=(2,)),
+            basix.ufl.element("Lagrange", "triangle", 2),
+        ]
     )
     W = fem.functionspace(msh, el)
     (th, w), (eta, v) = ufl.TrialFunctions(W), ufl.TestFunctions(W)
-    a = (ufl.inner(ufl.grad(th), ufl.grad(eta)) + ufl.inner(th - ufl.grad(w), eta - ufl.grad(v))
-         ) * ufl.dx
+    a = (
+        ufl.inner(ufl.grad(th), ufl.grad(eta)) + ufl.inner(th - ufl.grad(w), eta - ufl.grad(v))
+    ) * ufl.dx
     L = v * ufl.dx + eta[0] * ufl.dx
     Q, _ = W.sub(1).collapse()
     facets = curved.facet_tags.find(du.IMMERSED)
@@ -244,10 +247,12 @@ def test_invalid_arguments():
 def u_exact(x):
     r2 = x[0] ** 2 + x[1] ** 2
     rot = ufl.cos(x[0] + x[1])  # (-y, x) rot: tangential on the circle
-    return ufl.as_vector([
-        (1 - r2) * ufl.sin(2 * x[1]) - x[1] * rot + 0.3 * x[0] * ufl.exp(x[1]),
-        (1 - r2) * ufl.exp(x[0]) + x[0] * rot + 0.3 * x[1] * ufl.exp(x[1]),
-    ])
+    return ufl.as_vector(
+        [
+            (1 - r2) * ufl.sin(2 * x[1]) - x[1] * rot + 0.3 * x[0] * ufl.exp(x[1]),
+            (1 - r2) * ufl.exp(x[0]) + x[0] * rot + 0.3 * x[1] * ufl.exp(x[1]),
+        ]
+    )
 
 
 def u_exact_np(y: np.ndarray) -> np.ndarray:
@@ -296,6 +301,7 @@ def test_manufactured_convergence(component):
     errors = np.array([manufactured_errors(h, component) for h in hs])
     rate_l2 = np.polyfit(np.log(hs), np.log(errors[:, 0]), 1)[0]
     rate_h1 = np.polyfit(np.log(hs), np.log(errors[:, 1]), 1)[0]
-    print(f"{component}: L2 {errors[:, 0]} rate {rate_l2:.2f}; H1 {errors[:, 1]} "
-          f"rate {rate_h1:.2f}")
+    print(
+        f"{component}: L2 {errors[:, 0]} rate {rate_l2:.2f}; H1 {errors[:, 1]} rate {rate_h1:.2f}"
+    )
     assert abs(rate_l2 - 3) < 0.25 and abs(rate_h1 - 2) < 0.25

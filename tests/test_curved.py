@@ -40,8 +40,9 @@ def test_blend_on_edges_and_vertices(disc):
     # Positive edge (l_w = 0): G_h = pi(l_u u + l_v v), on the circle.
     lam = np.column_stack([t, 1 - t, 0 * t])
     g = transfinite_map(lam, b[u], b[v], y[u], y[v], y[w], pi)
-    ref = pi((t[None, :, None] * b[u][:, None] + (1 - t[None, :, None]) * b[v][:, None]).reshape(
-        -1, 2)).reshape(g.shape)
+    ref = pi(
+        (t[None, :, None] * b[u][:, None] + (1 - t[None, :, None]) * b[v][:, None]).reshape(-1, 2)
+    ).reshape(g.shape)
     assert np.abs(g[:, 1:-1] - ref[:, 1:-1]).max() < 1e-14
     assert np.abs(np.linalg.norm(g - CENTRE, axis=2) - 1.0).max() < 1e-14
     # Vertex limits are exact.
@@ -158,16 +159,20 @@ def _poisson_errors(cm, k, geometry_degree, map_):
         ufl.inner(ufl.grad(u), ufl.grad(v)) * ufl.dx,
         fem.Constant(msh, 0.0) * v * ufl.dx,
         bcs=[fem.dirichletbc(u_d, dofs)],
-        petsc_options={"ksp_type": "preonly", "pc_type": "lu",
-                       "pc_factor_mat_solver_type": "mumps"},
+        petsc_options={
+            "ksp_type": "preonly",
+            "pc_type": "lu",
+            "pc_factor_mat_solver_type": "mumps",
+        },
         petsc_options_prefix="test_poisson_",
     )
     uh = problem.solve()
     dx = ufl.Measure("dx", domain=msh, metadata={"quadrature_degree": 2 * k + 6})
     e = uh - u_ex
     l2 = np.sqrt(comm.allreduce(fem.assemble_scalar(fem.form(e * e * dx))))
-    h1 = np.sqrt(comm.allreduce(fem.assemble_scalar(fem.form(ufl.inner(ufl.grad(e),
-                                                                         ufl.grad(e)) * dx))))
+    h1 = np.sqrt(
+        comm.allreduce(fem.assemble_scalar(fem.form(ufl.inner(ufl.grad(e), ufl.grad(e)) * dx)))
+    )
     return l2, h1
 
 

@@ -153,8 +153,9 @@ def test_refinement_rounds_repair_an_undersized_background():
 def test_errors_no_size_can_fix():
     with pytest.raises(du.MeshingError, match="overlaps body"):
         du.mesh_domain(
-            comm, du.Domain(du.Circle((0, 0), 2), [du.Circle((0, 0), 0.5),
-                                                   du.Circle((0.6, 0), 0.3)]), 0.2
+            comm,
+            du.Domain(du.Circle((0, 0), 2), [du.Circle((0, 0), 0.5), du.Circle((0.6, 0), 0.3)]),
+            0.2,
         )
     with pytest.raises(du.MeshingError, match="leaves the container"):
         du.mesh_domain(comm, du.Domain(du.Circle((0, 0), 1), [du.Circle((0.9, 0), 0.3)]), 0.2)
@@ -167,7 +168,10 @@ def test_errors_no_size_can_fix():
 def test_given_box_channel():
     """A channel (the box) minus a cylinder: the box boundary is the outer boundary."""
     md = du.mesh_domain(
-        comm, du.Domain(None, [du.Circle((0.2, 0.2), 0.05)]), 0.05, degree=2,
+        comm,
+        du.Domain(None, [du.Circle((0.2, 0.2), 0.05)]),
+        0.05,
+        degree=2,
         box=[[0.0, 0.0], [2.2, 0.41]],
     )
     exact = 2.2 * 0.41 - np.pi * 0.05**2
@@ -195,8 +199,9 @@ def test_parameter_errors():
     cells = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64)
     if comm.rank:
         x, cells = x[:0], cells[:0]
-    surf = dmesh.create_mesh(comm, cells, basix.ufl.element("Lagrange", "triangle", 1,
-                                                            shape=(3,)), x)
+    surf = dmesh.create_mesh(
+        comm, cells, basix.ufl.element("Lagrange", "triangle", 1, shape=(3,)), x
+    )
     with pytest.raises(ValueError, match="triangle mesh in 3D"):
         du.conform(surf, du.Circle((0, 0), 0.5))
 
@@ -211,11 +216,15 @@ def _fingerprint(c: MPI.Comm) -> dict:
     msh = md.mesh
     a = c.allreduce(fem.assemble_scalar(fem.form(1.0 * ufl.dx(msh))))
     owned = msh.topology.index_map(2).size_local
-    cents = np.concatenate(c.allgather(msh.geometry.x[msh.geometry.dofmaps[0][:owned]][
-        :, :, :2].mean(axis=1)))
-    return {"n_cells": msh.topology.index_map(2).size_global, "area": a,
-            "rounds": md.certificate.refinement_rounds,
-            "centroids": cents[np.lexsort((cents[:, 1], cents[:, 0]))]}
+    cents = np.concatenate(
+        c.allgather(msh.geometry.x[msh.geometry.dofmaps[0][:owned]][:, :, :2].mean(axis=1))
+    )
+    return {
+        "n_cells": msh.topology.index_map(2).size_global,
+        "area": a,
+        "rounds": md.certificate.refinement_rounds,
+        "centroids": cents[np.lexsort((cents[:, 1], cents[:, 0]))],
+    }
 
 
 @pytest.mark.mpi
@@ -247,8 +256,16 @@ def test_collective_errors_never_hang():
     messages = comm.allgather(str(info.value))
     assert all(m == messages[0] for m in messages)
     with pytest.raises(du.MeshingError) as info:
-        raise_collective(comm, [Problem("{count} cells are bad near {where}",
-                                        np.array([[float(comm.rank), 0.0]]), comm.rank + 1)])
+        raise_collective(
+            comm,
+            [
+                Problem(
+                    "{count} cells are bad near {where}",
+                    np.array([[float(comm.rank), 0.0]]),
+                    comm.rank + 1,
+                )
+            ],
+        )
     n = comm.size
     assert str(info.value).startswith(f"{n * (n + 1) // 2} cells are bad near (0, 0), (1, 0)")
     assert len(info.value.points) == n
