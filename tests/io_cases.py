@@ -1,14 +1,6 @@
-"""Write (mode ``write``) or read (mode ``read``) curved-mesh checkpoints; fingerprints as JSON.
-
-Usage: ``io_roundtrip.py OUT.json write|read DIR``. Each case is one file ``DIR/<case>.vtkhdf``
-with its facet-tag sidecar; the JSON holds rank-independent fingerprints of each mesh.
-"""
+"""Curved meshes to checkpoint and rank-independent fingerprints of them (for tests/test_io.py)."""
 
 from __future__ import annotations
-
-import json
-import sys
-from pathlib import Path
 
 from mpi4py import MPI
 
@@ -18,7 +10,6 @@ from dolfinx import fem
 from dolfinx import mesh as dmesh
 
 import dolfinx_universal as du
-from dolfinx_universal import io as duio
 
 TAGS = (du.IMMERSED, du.OUTER)
 
@@ -62,29 +53,3 @@ def fingerprint(msh: dmesh.Mesh, tags: dmesh.MeshTags) -> dict:
             "midpoints": _gather(comm, mid),
         }
     return out
-
-
-def main() -> None:
-    comm = MPI.COMM_WORLD
-    out_file, mode, folder = sys.argv[1], sys.argv[2], Path(sys.argv[3])
-    result = {}
-    if mode == "write":
-        for name, cv in cases(comm).items():
-            duio.write_mesh(folder / f"{name}.vtkhdf", cv.mesh, cv.facet_tags)
-            result[name] = fingerprint(cv.mesh, cv.facet_tags)
-    elif mode == "read":
-        names = sorted(p.stem for p in folder.glob("*.vtkhdf")) if comm.rank == 0 else None
-        for name in comm.bcast(names, root=0):
-            msh, tags = duio.read_mesh(comm, folder / f"{name}.vtkhdf")
-            if comm.size > 1:  # distributed like the package's meshes: shared-facet ghosts
-                assert comm.allreduce(msh.topology.index_map(2).num_ghosts) > 0
-            result[name] = fingerprint(msh, tags)
-    else:
-        raise SystemExit(f"unknown mode {mode!r}")
-    result["nprocs"] = comm.size
-    if comm.rank == 0:
-        Path(out_file).write_text(json.dumps(result))
-
-
-if __name__ == "__main__":
-    main()
