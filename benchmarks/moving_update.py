@@ -10,10 +10,11 @@ warm-up step):
 * ``submesh``: the alternative design — :meth:`UniversalMesh.conform` (a new DOLFINx
   submesh) plus :func:`curved_mesh`, plus creating the P2/P1 spaces and the matrix on the
   new mesh (what every step would then need);
-* one Taylor–Hood (P2/P1) Stokes assembly and MUMPS solve on the in-place mesh (up to 1e5
+* one Taylor–Hood (P2/P1) Stokes assembly and MUMPS solve on the in-place mesh
+  (:class:`~dolfinx_universal.moving_problem.MovingStokes`) (up to 1e5
   cells; at 1e6 cells a direct solve does not fit this machine's time budget).
 
-Run: ``python benchmarks/moving_update.py [--sizes 1e4 1e5 1e6] [--steps 5]``; also under
+Run: ``python benchmarks/moving_update.py [--sizes 1e4 1e5 1e6] [--steps 5] [--quick]``; also under
 mpirun (timings are the maximum over ranks).
 """
 
@@ -23,17 +24,16 @@ import argparse
 import time
 
 from mpi4py import MPI
-from petsc4py import PETSc
 
 import basix.ufl
 import numpy as np
 import ufl
 from dolfinx import fem
-from dolfinx import mesh as dmesh
-from dolfinx.fem.petsc import create_matrix, create_vector
+from dolfinx.fem.petsc import create_matrix
 
 import dolfinx_universal as du
-from dolfinx_universal.moving import MovingDomain, reassemble
+from dolfinx_universal.moving import MovingDomain
+from dolfinx_universal.moving_problem import MovingStokes
 
 comm = MPI.COMM_WORLD
 
@@ -42,7 +42,7 @@ def propeller() -> du.PolarCurve:
     """A smooth three-blade body, r = 0.2 + 0.2 exp(-sin^2(1.5 t)/0.5)."""
 
     def r(t):
-        return 0.2 + 0.2 * np.exp(-np.sin(1.5 * t) ** 2 / 0.5)
+        return 0.2 + 0.2 * np.exp(-(np.sin(1.5 * t) ** 2) / 0.5)
 
     def dr(t):
         s, c = np.sin(1.5 * t), np.cos(1.5 * t)
@@ -63,59 +63,19 @@ def timed(fn, *args):
     return out, comm.allreduce(time.perf_counter() - t, op=MPI.MAX)
 
 
-def stokes_setup(md: MovingDomain):
-    """Taylor–Hood forms with the active-cell indicator, compiled once."""
-    msh = md.mesh
-    P2 = basix.ufl.element("Lagrange", "triangle", 2, shape=(2,))
-    P1 = basix.ufl.element("Lagrange", "triangle", 1)
-    W = fem.functionspace(msh, basix.ufl.mixed_element([P2, P1]))
-    (u, p), (v, q) = ufl.TrialFunctions(W), ufl.TestFunctions(W)
-    chi, mu = md.active, 0.01
-    a = fem.form(chi * (2 * mu * ufl.inner(ufl.sym(ufl.grad(u)), ufl.sym(ufl.grad(v)))
-                        - p * ufl.div(v) - q * ufl.div(u)) * ufl.dx)
-    L = fem.form(ufl.inner(fem.Constant(msh, (0.0, 0.0)), v) * ufl.dx)
-    return W, a, L
-
-
-def stokes_assemble(md: MovingDomain, W, a, L, A, b, omega: float) -> None:
-    """Boundary conditions of this step and assembly into the reused matrix and vector.
-
-    Velocity: the body's rotation ``omega (-y, x)`` on Gamma_h and on the dofs of the cells
-    inside the body, zero on the outer boundary. Pressure: zero on dofs in no active cell,
-    and at one corner.
-    """
-    msh = md.mesh
-    V, _ = W.sub(0).collapse()
-    Q, (qmap,) = W.sub(1).collapse()  # 0.11: one map per sub-space level
-    g, zero = fem.Function(V), fem.Function(V)
-    g.interpolate(lambda x: np.vstack([-omega * x[1], omega * x[0]]))
-    inactive_cells = np.flatnonzero(md.active.x.array[md._cell_dof] == 0).astype(np.int32)
-    body_w = fem.locate_dofs_topological((W.sub(0), V), 1, md.immersed_facets)
-    cells_w = fem.locate_dofs_topological((W.sub(0), V), 2, inactive_cells)
-    body = [np.concatenate([body_w[0], cells_w[0]]), np.concatenate([body_w[1], cells_w[1]])]
-    msh.topology.create_connectivity(1, 2)
-    outer = dmesh.exterior_facet_indices(msh.topology)
-    walls = fem.locate_dofs_topological((W.sub(0), V), 1, outer)
-    p_dead = md.inactive_dofs(Q)
-    corner = fem.locate_dofs_geometrical(
-        (W.sub(1), Q), lambda x: np.isclose(x[0], -1) & np.isclose(x[1], -1))
-    p_fixed = [np.concatenate([np.asarray(qmap)[p_dead], corner[0]]),
-               np.concatenate([p_dead, corner[1]])]
-    bcs = [
-        fem.dirichletbc(g, body, W.sub(0)),
-        fem.dirichletbc(zero, walls, W.sub(0)),
-        fem.dirichletbc(fem.Function(Q), p_fixed, W.sub(1)),
-    ]
-    reassemble(A, b, a, L, bcs)
-
-
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--sizes", type=float, nargs="+", default=[1e4, 1e5, 1e6])
     parser.add_argument("--steps", type=int, default=5)
-    parser.add_argument("--stokes-max", type=float, default=2e5,
-                        help="largest cell count with a Stokes solve")
+    parser.add_argument(
+        "--stokes-max", type=float, default=2e5, help="largest cell count with a Stokes solve"
+    )
+    parser.add_argument(
+        "--quick", action="store_true", help="one small background (1e4 cells) and 2 steps"
+    )
     args = parser.parse_args()
+    if args.quick:
+        args.sizes, args.steps = [1e4], 2
     body = propeller()
     rows = []
     for target in args.sizes:
@@ -135,48 +95,60 @@ def main() -> None:
                 P1 = basix.ufl.element("Lagrange", "triangle", 1)
                 W = fem.functionspace(cv.mesh, basix.ufl.mixed_element([P2, P1]))
                 (u, p), (v, q) = ufl.TrialFunctions(W), ufl.TestFunctions(W)
-                form = fem.form((ufl.inner(ufl.grad(u), ufl.grad(v)) - p * ufl.div(v)
-                                 - q * ufl.div(u)) * ufl.dx)
+                form = fem.form(
+                    (ufl.inner(ufl.grad(u), ufl.grad(v)) - p * ufl.div(v) - q * ufl.div(u)) * ufl.dx
+                )
                 return create_matrix(form)
 
             _, t_sub = timed(submesh_step)
             if step:  # the first step is the warm-up
                 inplace.append(t), sub.append(t_sub), split.append(report.timings)
                 updated.append(report.num_updated_cells)
-        med = {k: comm.allreduce(float(np.median([s[k] for s in split])), op=MPI.MAX)
-               for k in split[0]}
-        row = {"cells": ncells, "h": h, "background_s": t_bg, "setup_s": t_setup,
-               "update_s": float(np.median(inplace)), "submesh_s": float(np.median(sub)),
-               "updated_cells": int(np.median(updated)), "split": med, "stokes_s": None}
+        med = {
+            k: comm.allreduce(float(np.median([s[k] for s in split])), op=MPI.MAX) for k in split[0]
+        }
+        row = {
+            "cells": ncells,
+            "h": h,
+            "background_s": t_bg,
+            "setup_s": t_setup,
+            "update_s": float(np.median(inplace)),
+            "submesh_s": float(np.median(sub)),
+            "updated_cells": int(np.median(updated)),
+            "split": med,
+            "stokes_s": None,
+        }
         if ncells <= args.stokes_max:
-            W, a, L = stokes_setup(md)
-            A, b = create_matrix(a), create_vector(W)
-            _, t_asm = timed(stokes_assemble, md, W, a, L, A, b, -2.0)
-            ksp = PETSc.KSP().create(comm)
-            ksp.setType("preonly")
-            ksp.getPC().setType("lu")
-            ksp.getPC().setFactorSolverType("mumps")
-            ksp.setOperators(A)
-            x = b.duplicate()
-            _, t_solve = timed(ksp.solve, b, x)
+            # Body: the rotation omega (-y, x) on Gamma_h; walls: 0; inactive dofs: 0;
+            # pressure: 0 at a corner (the library's Taylor-Hood set-up).
+            stokes = MovingStokes(md, 0.01, (-1.0, -1.0), petsc_options_prefix="bench_")
+            _, t_asm = timed(stokes.assemble, (0.0, 0.0), -2.0)
+            _, t_solve = timed(stokes.solve_assembled)
             row["stokes_s"] = t_asm + t_solve
-            row["stokes_dofs"] = W.dofmap.index_map.size_global * 1
+            row["stokes_dofs"] = stokes.W.dofmap.index_map.size_global
         rows.append(row)
     if comm.rank == 0:
         print(f"\nranks: {comm.size}; median of {args.steps} steps after a warm-up step")
-        print(f"{'cells':>9} {'updated':>8} {'in-place [s]':>12} {'classify':>9} {'project':>8} "
-              f"{'map':>7} {'geometry':>8} {'submesh [s]':>11} {'Stokes [s]':>10} "
-              f"{'update/Stokes':>13}")
+        print(
+            f"{'cells':>9} {'updated':>8} {'in-place [s]':>12} {'classify':>9} {'project':>8} "
+            f"{'map':>7} {'geometry':>8} {'submesh [s]':>11} {'Stokes [s]':>10} "
+            f"{'update/Stokes':>13}"
+        )
         for r in rows:
             s = r["split"]
             stokes = f"{r['stokes_s']:10.3f}" if r["stokes_s"] else f"{'-':>10}"
-            ratio = (f"{100 * r['update_s'] / r['stokes_s']:12.1f}%" if r["stokes_s"]
-                     else f"{'-':>13}")
-            print(f"{r['cells']:9d} {r['updated_cells']:8d} {r['update_s']:12.4f} "
-                  f"{s['classify']:9.4f} {s['project']:8.4f} {s['map']:7.4f} "
-                  f"{s['geometry']:8.4f} {r['submesh_s']:11.4f} {stokes} {ratio}")
-        print("\nin-place / submesh per-step time: "
-              + ", ".join(f"{r['cells']}: {r['update_s'] / r['submesh_s']:.2f}" for r in rows))
+            ratio = (
+                f"{100 * r['update_s'] / r['stokes_s']:12.1f}%" if r["stokes_s"] else f"{'-':>13}"
+            )
+            print(
+                f"{r['cells']:9d} {r['updated_cells']:8d} {r['update_s']:12.4f} "
+                f"{s['classify']:9.4f} {s['project']:8.4f} {s['map']:7.4f} "
+                f"{s['geometry']:8.4f} {r['submesh_s']:11.4f} {stokes} {ratio}"
+            )
+        print(
+            "\nin-place / submesh per-step time: "
+            + ", ".join(f"{r['cells']}: {r['update_s'] / r['submesh_s']:.2f}" for r in rows)
+        )
 
 
 if __name__ == "__main__":

@@ -26,6 +26,7 @@ from .curved import CurvedMesh, boundary_dof_data, curved_mesh
 from .domain import Certificate, MeshedDomain, mesh_domain
 from .graded import graded_mesh
 from .moving import MovingDomain
+from .moving_problem import MovingLinearProblem, MovingStokes
 from .quality import quality_report
 from .validation import MeshingError
 
@@ -48,6 +49,8 @@ __all__ = [
     "MeshedDomain",
     "MeshingError",
     "MovingDomain",
+    "MovingLinearProblem",
+    "MovingStokes",
     "PeriodicSpline",
     "PolarCurve",
     "RigidMotion",

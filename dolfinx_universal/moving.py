@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-import contextlib
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from typing import TYPE_CHECKING
@@ -38,7 +37,7 @@ if TYPE_CHECKING:
 COVERAGE_TOLERANCE = 1.5
 """A step may ask for sizes this much finer than the background built for the motion."""
 
-__all__ = ["MovingDomain", "StepReport", "count_jit_compilations", "reassemble"]
+__all__ = ["MovingDomain", "StepReport"]
 
 
 @dataclass
@@ -59,7 +58,9 @@ class StepReport:
 
 
 class MovingDomain:
-    """A background mesh re-conformed in place to a moving domain at every step (SPEC §5).
+    """A background mesh re-conformed in place to a moving domain at every step.
+
+    One universal mesh serves every position of the domain (Rangarajan & Lew 2014).
 
     The DOLFINx mesh :attr:`mesh` is the *whole* background with a degree-q coordinate
     element; it is created once, so its topology, dofmaps, sparsity patterns and every form
@@ -72,7 +73,8 @@ class MovingDomain:
 
     and the degrees of freedom of inactive cells are fixed by :meth:`inactive_dofs`.
     Integrals over the immersed boundary are one-sided interior-facet integrals
-    (:meth:`immersed_integral`). Geometry outside the domain is meaningless (triangles may
+    (:meth:`immersed_integral`); :mod:`dolfinx_universal.moving_problem` assembles and
+    solves on it reusing one matrix. Geometry outside the domain is meaningless (triangles may
     fold there) and never integrated with a nonzero weight.
 
     Parameters
@@ -88,7 +90,9 @@ class MovingDomain:
         See :class:`~dolfinx_universal.conform.UniversalMesh` (``local_size=True`` for graded
         backgrounds).
 
-    See :meth:`from_motion` for a background sized automatically for a given motion.
+    See Also
+    --------
+    from_motion : a background sized automatically for a given motion.
     """
 
     def __init__(
@@ -108,8 +112,14 @@ class MovingDomain:
         if map not in MAPS:
             raise ValueError(f"unknown map {map!r}: choose one of {MAPS}")
         self.universal = UniversalMesh(
-            background, R_r=R_r, alpha=alpha, eta=eta, relaxation_factor=relaxation_factor,
-            local_size=local_size, min_angle=min_angle, on_low_quality=on_low_quality,
+            background,
+            R_r=R_r,
+            alpha=alpha,
+            eta=eta,
+            relaxation_factor=relaxation_factor,
+            local_size=local_size,
+            min_angle=min_angle,
+            on_low_quality=on_low_quality,
         )
         self.refinement_rounds = 0
         """Local refinements made by :meth:`from_motion` (0 otherwise)."""
@@ -138,6 +148,8 @@ class MovingDomain:
         """Background facets on Gamma_h (process-local, owned and ghost)."""
         self.active_cells = np.empty(0, dtype=np.int32)
         """Cells of ``T_h^sub`` (process-local, owned and ghost)."""
+        self._cells = np.arange(len(self._c2v), dtype=np.int32)
+        self._active_tags = self._tags()
         self.steps: list[StepReport] = []
         self._coverage: tuple[SizeField, npt.NDArray[np.float64], int, float | None] | None = None
 
@@ -201,17 +213,26 @@ class MovingDomain:
         if not positions:
             raise ValueError("the motion has no positions")
         box_arr, field, _, _ = size_from_geometry(
-            comm, positions, h, degree=degree, box=box, relaxation_factor=relaxation_factor,
+            comm,
+            positions,
+            h,
+            degree=degree,
+            box=box,
+            relaxation_factor=relaxation_factor,
             size_factor=size_factor,
         )
         rounds = 0
         while True:
-            background = graded_mesh(
-                comm, box_arr, field, max_size=h, root_size=h / EDGE_FACTOR
-            )
+            background = graded_mesh(comm, box_arr, field, max_size=h, root_size=h / EDGE_FACTOR)
             md = cls(
-                background, degree, map, eta=eta, relaxation_factor=relaxation_factor,
-                local_size=True, min_angle=min_angle, on_low_quality="raise",
+                background,
+                degree,
+                map,
+                eta=eta,
+                relaxation_factor=relaxation_factor,
+                local_size=True,
+                min_angle=min_angle,
+                on_low_quality="raise",
             )
             k = 0
             try:
@@ -222,8 +243,10 @@ class MovingDomain:
                 if not e.refinable or len(e.points) == 0 or rounds >= max_rounds:
                     raise MeshingError(
                         f"position {k} of the motion cannot be meshed"
-                        + (f" after {rounds} refinements" if rounds else "") + f": {e}",
-                        e.points, refinable=False,
+                        + (f" after {rounds} refinements" if rounds else "")
+                        + f": {e}",
+                        e.points,
+                        refinable=False,
                     ) from None
                 field = field.refined(e.points, 0.5 * field(e.points))
                 rounds += 1
@@ -261,8 +284,16 @@ class MovingDomain:
         redo = np.flatnonzero(near | self._dirty | (sm.kept != self._kept))
         cells = c2v[redo]
         nodes = collective_call(
-            self.comm, "the curved map", map_nodes, cells, sm.y, sm.x, sm.sign, self.degree,
-            self._kind, boundary.closest_point,
+            self.comm,
+            "the curved map",
+            map_nodes,
+            cells,
+            sm.y,
+            sm.x,
+            sm.sign,
+            self.degree,
+            self._kind,
+            boundary.closest_point,
         )
         kept = sm.kept[redo]
         cut = np.flatnonzero(kept & positively_cut(sm.sign, cells))
@@ -270,10 +301,16 @@ class MovingDomain:
         bad = ratio <= 0
         raise_collective(
             self.comm,
-            [Problem(f"step {len(self.steps)}: " + "{count} curved triangles would be inverted "
-                     "near {where}: refine the background there",
-                     nodes[cut[bad]].mean(axis=1), int(bad.sum()))]
-            if bad.any() else [],
+            [
+                Problem(
+                    f"step {len(self.steps)}: " + "{count} curved triangles would be inverted "
+                    "near {where}: refine the background there",
+                    nodes[cut[bad]].mean(axis=1),
+                    int(bad.sum()),
+                )
+            ]
+            if bad.any()
+            else [],
         )
         # Write the nodes in place; inactive cells first, so that on Gamma_h the active
         # cell's curved nodes win.
@@ -283,6 +320,7 @@ class MovingDomain:
         self._dirty, self._kept = near, sm.kept
         self.active.x.array[self._cell_dof[redo]] = kept.astype(np.float64)
         self.active_cells = np.flatnonzero(sm.kept).astype(np.int32)
+        self._active_tags = self._tags()
         k = np.argmin(sm.sign[cells[cut]], axis=1)
         self.immersed_facets = np.unique(self._c2f[redo[cut], k]).astype(np.int32)
         self.boundary = boundary
@@ -318,12 +356,16 @@ class MovingDomain:
         coarse = target < field(pts) / COVERAGE_TOLERANCE
         bad = outside | coarse
         if bad.any():
-            what = "leaves the background" if outside.any() else (
-                "needs a finer background than the one sized for the motion")
+            what = (
+                "leaves the background"
+                if outside.any()
+                else ("needs a finer background than the one sized for the motion")
+            )
             raise MeshingError(
                 f"step {len(self.steps)}: the boundary {what} near {where(pts[bad])}: include "
                 "this position in the motion given to MovingDomain.from_motion",
-                pts[bad], refinable=False,
+                pts[bad],
+                refinable=False,
             )
 
     def _quality(self, sm, near: npt.NDArray[np.bool_]) -> dict[str, float | int]:
@@ -338,9 +380,12 @@ class MovingDomain:
         red = self.comm.allreduce
         n_far = red(int(np.count_nonzero(far)))
         if n_far:
+
             def ext(values, op, empty):
-                return red(float(op(values[far])) if far.any() else empty,
-                           op=MPI.MIN if op is np.min else MPI.MAX)
+                return red(
+                    float(op(values[far])) if far.any() else empty,
+                    op=MPI.MIN if op is np.min else MPI.MAX,
+                )
 
             rep["theta_min_deg"] = min(rep["theta_min_deg"], ext(b["theta_min"], np.min, 180.0))
             rep["theta_max_deg"] = max(rep["theta_max_deg"], ext(b["theta_max"], np.max, 0.0))
@@ -357,10 +402,34 @@ class MovingDomain:
         """Per-cell quality of the owned background triangles."""
         x, cells = self.universal._x, self._c2v[: self._nco]
         ang = np.degrees(interior_angles(x, cells))
-        return {"theta_min": ang.min(axis=1), "theta_max": ang.max(axis=1),
-                "q": radius_ratio(x, cells), "Q": edge_ratio(x, cells)}
+        return {
+            "theta_min": ang.min(axis=1),
+            "theta_max": ang.max(axis=1),
+            "q": radius_ratio(x, cells),
+            "Q": edge_ratio(x, cells),
+        }
 
     # -- what forms and boundary conditions need --------------------------------------------
+
+    def _tags(self) -> dmesh.MeshTags:
+        values = np.zeros(len(self._cells), dtype=np.int32)
+        values[self.active_cells] = 1
+        tags = dmesh.meshtags(self.mesh, self.mesh.topology.dim, self._cells, values)
+        tags.name = "active"
+        return tags
+
+    @property
+    def active_tags(self) -> dmesh.MeshTags:
+        """The cells of ``T_h^sub`` as cell tags: 1 on active cells, 0 on the others.
+
+        Every process-local cell (owned and ghost) is tagged. A new object is made by each
+        :meth:`update` (0 everywhere before the first). Integration entities are read from
+        tags when a form is compiled, so a form built once and reused over the steps must
+        use the indicator :attr:`active`; the tags serve output, submeshes
+        (``dolfinx.mesh.create_submesh(md.mesh, 2, md.active_tags.find(1))``) and forms
+        made for one step (``ufl.dx(subdomain_data=md.active_tags, subdomain_id=1)``).
+        """
+        return self._active_tags
 
     def inactive_dofs(self, V: fem.FunctionSpace) -> npt.NDArray[np.int32]:
         """Dofs of ``V`` (block indices, process-local) that belong to no active cell.
@@ -376,9 +445,22 @@ class MovingDomain:
         mark = vertex_reduce(imap, mark, "sum")
         return np.flatnonzero(mark == 0).astype(np.int32)
 
-    def immersed_dofs(self, V: fem.FunctionSpace) -> npt.NDArray[np.int32]:
-        """Dofs of ``V`` on the immersed boundary Gamma_h (process-local). Collective."""
+    def immersed_dofs(
+        self, V: fem.FunctionSpace | Sequence[fem.FunctionSpace]
+    ) -> npt.NDArray[np.int32] | list[npt.NDArray[np.int32]]:
+        """Dofs of ``V`` on the immersed boundary Gamma_h (process-local). Collective.
+
+        ``V`` is what :func:`dolfinx.fem.locate_dofs_topological` accepts: a space, a
+        sub-space (``W.sub(0)`` of a mixed space: dofs of ``W``), or a pair
+        ``(W.sub(0), V0)`` with ``V0, _ = W.sub(0).collapse()``, which gives
+        ``[dofs of W, dofs of V0]`` for :func:`dolfinx.fem.dirichletbc` with a function on
+        ``V0``.
+        """
         self.mesh.topology.create_connectivity(1, 2)
+        if not isinstance(V, fem.FunctionSpace):
+            V = list(V)
+            if len(V) != 2:
+                raise ValueError("immersed_dofs: give a space or a pair (sub-space, collapsed)")
         return fem.locate_dofs_topological(V, 1, self.immersed_facets)
 
     def immersed_integral(self, integrand: Callable[[str], ufl.core.expr.Expr]) -> ufl.Form:
@@ -401,47 +483,3 @@ class MovingDomain:
         self.mesh.topology.create_connectivity(1, 2)
         nodes = dmesh.entities_to_geometry(self.mesh, 1, self.immersed_facets)
         return self.mesh.geometry.x[nodes.ravel(), :2]
-
-
-def reassemble(A, b, a: fem.Form, L: fem.Form, bcs: list[fem.DirichletBC]) -> None:
-    """Assemble ``a`` and ``L`` with ``bcs`` into the existing PETSc matrix and vector.
-
-    On a :class:`MovingDomain` the sparsity of ``A`` (from
-    :func:`dolfinx.fem.petsc.create_matrix` before the first step) stays valid for every
-    step; only the values and the boundary conditions change.
-    """
-    from petsc4py import PETSc
-
-    from dolfinx.fem.petsc import apply_lifting, assemble_matrix, assemble_vector, set_bc
-
-    A.zeroEntries()
-    assemble_matrix(A, a, bcs=bcs)
-    A.assemble()
-    with b.localForm() as local:
-        local.set(0.0)
-    assemble_vector(b, L)
-    apply_lifting(b, [a], [bcs])
-    b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-    set_bc(b, bcs)
-
-
-@contextlib.contextmanager
-def count_jit_compilations() -> Iterator[list[int]]:
-    """Count FFCx C compilations (cache misses) inside a ``with`` block.
-
-    Yields a one-element list holding the count so far.
-    """
-    import ffcx.codegeneration.jit as jit
-
-    count = [0]
-    original = jit._compile_objects
-
-    def counting(*args, **kwargs):
-        count[0] += 1
-        return original(*args, **kwargs)
-
-    jit._compile_objects = counting
-    try:
-        yield count
-    finally:
-        jit._compile_objects = original

@@ -5,14 +5,18 @@ from __future__ import annotations
 from mpi4py import MPI
 from petsc4py import PETSc
 
+import basix.ufl
 import numpy as np
 import pytest
 import ufl
 from dolfinx import fem
+from dolfinx import mesh as dmesh
 from dolfinx.fem.petsc import create_matrix, create_vector
+from jit_counter import count_jit_compilations
 
 import dolfinx_universal as du
-from dolfinx_universal.moving import MovingDomain, count_jit_compilations, reassemble
+from dolfinx_universal.moving import MovingDomain, StepReport
+from dolfinx_universal.moving_problem import MovingLinearProblem, MovingStokes, reassemble
 
 comm = MPI.COMM_WORLD
 
@@ -92,14 +96,24 @@ def test_in_place_equals_submesh_and_no_recompilation():
             dofs = fem.locate_dofs_topological(Vs, 1, cv.facet_tags.find(du.IMMERSED))
             problem = fem.petsc.LinearProblem(
                 ufl.inner(ufl.grad(us), ufl.grad(vs)) * ufl.dx,
-                fem.Constant(cv.mesh, 0.0) * vs * ufl.dx, bcs=[fem.dirichletbc(gs, dofs)],
-                petsc_options={"ksp_type": "preonly", "pc_type": "lu",
-                               "pc_factor_mat_solver_type": "mumps"},
-                petsc_options_prefix=f"sub{step}_")
+                fem.Constant(cv.mesh, 0.0) * vs * ufl.dx,
+                bcs=[fem.dirichletbc(gs, dofs)],
+                petsc_options={
+                    "ksp_type": "preonly",
+                    "pc_type": "lu",
+                    "pc_factor_mat_solver_type": "mumps",
+                },
+                petsc_options_prefix=f"sub{step}_",
+            )
             us_h = problem.solve()
             xs = ufl.SpatialCoordinate(cv.mesh)
-            e_sub = np.sqrt(comm.allreduce(fem.assemble_scalar(fem.form(
-                (us_h - ufl.exp(xs[1]) * ufl.sin(xs[0])) ** 2 * ufl.dx))))
+            e_sub = np.sqrt(
+                comm.allreduce(
+                    fem.assemble_scalar(
+                        fem.form((us_h - ufl.exp(xs[1]) * ufl.sin(xs[0])) ** 2 * ufl.dx)
+                    )
+                )
+            )
             assert e_inplace == pytest.approx(e_sub, rel=1e-8)
             if step == 0:
                 first = compiled[0]
@@ -133,7 +147,7 @@ def test_graded_background_with_level_changes_near_gamma():
     from dolfinx_universal.graded import graded_mesh
 
     def r(t):
-        return 0.12 + 0.38 * np.exp(-np.sin(1.5 * t) ** 2 / 0.3)
+        return 0.12 + 0.38 * np.exp(-(np.sin(1.5 * t) ** 2) / 0.3)
 
     def dr(t):
         s, c = np.sin(1.5 * t), np.cos(1.5 * t)
@@ -165,12 +179,14 @@ def test_from_motion_sizes_one_background_for_every_step():
         return du.Domain(None, [du.RigidMotion(body, angle=t, translation=(0.3 * t, 0.0))])
 
     times = np.linspace(0.0, 1.0, 9)
-    md = MovingDomain.from_motion(comm, motion, 0.15, times=times, degree=2,
-                                  box=[[-1.0, -1.0], [1.5, 1.0]])
+    md = MovingDomain.from_motion(
+        comm, motion, 0.15, times=times, degree=2, box=[[-1.0, -1.0], [1.5, 1.0]]
+    )
     assert md.steps == []
     area = fem.form(md.active * ufl.dx)
-    ref = 2.5 * 2.0 - comm.allreduce(fem.assemble_scalar(fem.form(1.0 * ufl.dx(
-        du.mesh_domain(comm, body, 0.15, degree=2).mesh))))
+    ref = 2.5 * 2.0 - comm.allreduce(
+        fem.assemble_scalar(fem.form(1.0 * ufl.dx(du.mesh_domain(comm, body, 0.15, degree=2).mesh)))
+    )
     for t in times:
         report = md.update(motion(t))
         assert report.quality["n_inverted"] == 0 and report.min_jacobian_ratio > 0
@@ -182,3 +198,115 @@ def test_from_motion_sizes_one_background_for_every_step():
         md.update(du.Domain(None, [du.RigidMotion(du.Ellipse((0, 0), 0.3, 0.02), angle=1.0)]))
     with pytest.raises(ValueError, match="needs the times"):
         MovingDomain.from_motion(comm, motion, 0.15)
+
+
+def _taylor_hood(md: MovingDomain):
+    P2v = basix.ufl.element("Lagrange", "triangle", 2, shape=(2,))
+    P1 = basix.ufl.element("Lagrange", "triangle", 1)
+    return fem.functionspace(md.mesh, basix.ufl.mixed_element([P2v, P1]))
+
+
+def test_immersed_dofs_on_sub_spaces_and_active_tags():
+    bg = du.equilateral_mesh(comm, [[-1.0, -1.0], [1.0, 1.0]], 0.1)
+    md = MovingDomain(bg, degree=2)
+    assert isinstance(md.active_tags, dmesh.MeshTags)
+    assert (md.active_tags.values == 0).all()
+    W = _taylor_hood(md)
+    V, _ = W.sub(0).collapse()
+    for c in ((0.0, 0.0), (0.1, -0.05)):
+        disc = du.Circle(c, 0.5)
+        report = md.update(disc)
+        assert isinstance(report, StepReport)
+        md.mesh.topology.create_connectivity(1, 2)
+        # The same dofs as DOLFINx's locate_dofs_topological on the sub-space and the pair.
+        sub = md.immersed_dofs(W.sub(0))
+        assert np.array_equal(sub, fem.locate_dofs_topological(W.sub(0), 1, md.immersed_facets))
+        pair = md.immersed_dofs((W.sub(0), V))
+        assert np.array_equal(pair[0], sub) and len(pair[1]) == len(sub)
+        # The velocity nodes on Gamma_h lie on the circle.
+        xyz = V.tabulate_dof_coordinates()[pair[1] // 2, :2]
+        assert len(xyz) == 0 or np.abs(disc.signed_distance(xyz)).max() < 1e-10
+        # The tags are the indicator, recomputed by update.
+        tags = md.active_tags
+        chi = md.active.x.array[md.active.function_space.dofmap.list[tags.indices, 0]]
+        assert np.array_equal(tags.values, chi.astype(np.int32))
+        assert np.array_equal(tags.find(1), md.active_cells)
+        n_owned = md.mesh.topology.index_map(2).size_local
+        assert comm.allreduce(np.count_nonzero(tags.find(1) < n_owned)) == report.num_active_cells
+    with pytest.raises(ValueError, match="pair"):
+        md.immersed_dofs((W.sub(0), V, V))
+
+
+def test_moving_linear_problem_equals_manual_reassembly():
+    """The library's reassembly into one matrix gives the solution of a system assembled
+    from scratch at every step (to 1e-10)."""
+    from dolfinx.fem.petsc import apply_lifting, assemble_matrix, assemble_vector, set_bc
+
+    bg = du.equilateral_mesh(comm, [[-1.4, -1.4], [1.4, 1.4]], 0.12)
+    md = MovingDomain(bg, degree=2)
+    V = fem.functionspace(md.mesh, ("Lagrange", 2))
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    a = fem.form(md.active * ufl.inner(ufl.grad(u), ufl.grad(v)) * ufl.dx)
+    L = fem.form(md.active * fem.Constant(md.mesh, 1.0) * v * ufl.dx)
+    opts = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"}
+    problem = MovingLinearProblem(
+        md, a, L, petsc_options_prefix="mlp_", petsc_options=opts, u=fem.Function(V)
+    )
+    g = fem.Function(V)
+    for step in range(3):
+        md.update(du.Circle((0.1 * np.cos(step), 0.08 * np.sin(2 * step)), 1.0))
+        g.interpolate(lambda p: 1 + p[0] * p[1])
+        bc = fem.dirichletbc(g, md.immersed_dofs(V))
+        uh = problem.solve([bc])
+        # From scratch: a new matrix, the inactive dofs fixed by hand.
+        bcs = [fem.dirichletbc(fem.Function(V), md.inactive_dofs(V)), bc]
+        A = assemble_matrix(a, bcs=bcs)
+        A.assemble()
+        b = assemble_vector(L)
+        apply_lifting(b, [a], [bcs])
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        set_bc(b, bcs)
+        ksp = PETSc.KSP().create(comm)
+        ksp.setOperators(A)
+        ksp.setType("preonly")
+        ksp.getPC().setType("lu")
+        ksp.getPC().setFactorSolverType("mumps")
+        ref = fem.Function(V)
+        ksp.solve(b, ref.x.petsc_vec)
+        ref.x.scatter_forward()
+        scale = np.abs(ref.x.array).max()
+        assert np.abs(uh.x.array - ref.x.array).max() < 1e-10 * scale
+        for obj in (ksp, A, b):
+            obj.destroy()
+
+
+def test_moving_stokes_rigid_translation_and_compiles_once():
+    """A disc translating with the walls: the flow is the rigid translation, the force and
+    torque vanish, and nothing is compiled after the first step."""
+    bg = du.equilateral_mesh(comm, [[-1.0, -1.0], [1.0, 1.0]], 0.1)
+    md = MovingDomain(bg, degree=2)
+    velocity = np.array([0.3, -0.2])
+    stokes = MovingStokes(
+        md, 0.01, (-1.0, -1.0), wall_velocity=velocity, petsc_options_prefix="test_stokes_"
+    )
+    with count_jit_compilations() as compiled:
+        for step in range(3):
+            md.update(du.Circle((0.1 * step, 0.05), 0.4))
+            u_h, p_h = stokes.solve(velocity)
+            active = md.inactive_dofs(stokes.V)
+            values = u_h.x.array.reshape(-1, 2)
+            keep = np.setdiff1d(np.arange(len(values)), active)
+            assert np.abs(values[keep] - velocity).max() < 1e-10
+            assert np.abs(stokes.force()).max() < 1e-10
+            assert abs(stokes.torque()) < 1e-10
+            if step == 0:
+                first = compiled[0]
+        assert compiled[0] == first
+    # A rotating disc in fluid at rest: torque against the rotation, no net force.
+    stokes = MovingStokes(md, 0.01, (-1.0, -1.0), petsc_options_prefix="test_rot_")
+    md.update(du.Domain(None, [du.Circle((0.0, 0.0), 0.4)]))
+    stokes.assemble(angular_velocity=1.0)
+    stokes.solve_assembled()
+    torque, surface = stokes.torque(), stokes.surface_torque()
+    assert torque < 0 and surface == pytest.approx(torque, rel=0.05)
+    assert np.abs(stokes.force()).max() < 0.15 * abs(torque)  # 0 up to the discretisation

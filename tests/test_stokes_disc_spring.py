@@ -8,8 +8,16 @@ import numpy as np
 import pytest
 from conftest import run_mpi
 
-KEYS = {"dt", "steps", "trajectory", "final_position", "final_speed", "spring_force_final",
-        "fluid_force_final"}
+KEYS = {
+    "dt",
+    "steps",
+    "trajectory",
+    "final_position",
+    "final_speed",
+    "spring_force_final",
+    "fluid_force_final",
+}
+WRITTEN = {"parameters", "reference", "versions", "mpi_size"}  # demo_support.write_summary
 
 
 @pytest.fixture(scope="module")
@@ -18,10 +26,12 @@ def runs(tmp_path_factory) -> dict[int, tuple[dict, dict]]:
     out = {}
     for nprocs in (1, 2):
         folder = tmp_path_factory.mktemp(f"disc{nprocs}")
-        run_mpi(nprocs, ["demos/stokes_disc_spring.py", "--quick", "--out", str(folder)],
-                timeout=300)
-        out[nprocs] = tuple(json.loads((folder / name).read_text())
-                            for name in ("summary.json", "forces.json"))
+        run_mpi(
+            nprocs, ["demos/stokes_disc_spring.py", "--quick", "--out", str(folder)], timeout=300
+        )
+        out[nprocs] = tuple(
+            json.loads((folder / name).read_text()) for name in ("summary.json", "forces.json")
+        )
         if nprocs == 1:
             for name in ("trajectory.png", "frames.png", "settling.png"):
                 assert (folder / name).stat().st_size > 10_000
@@ -30,7 +40,8 @@ def runs(tmp_path_factory) -> dict[int, tuple[dict, dict]]:
 
 def test_summary(runs):
     summary, forces = runs[1]
-    assert set(summary) == KEYS
+    assert set(summary) == KEYS | WRITTEN
+    assert len(summary["reference"]["equilibrium_position"]) == 2
     assert summary["dt"] == 0.05 and summary["steps"] == 20
     traj = np.array(summary["trajectory"])
     assert traj.shape == (21, 3)
@@ -40,7 +51,8 @@ def test_summary(runs):
     # The restoring spring: -k (1 - l0/|c|) c with k = 1, l0 = 1/4.
     c = np.array(summary["final_position"])
     assert summary["spring_force_final"] == pytest.approx(
-        -(1 - 0.25 / np.linalg.norm(c)) * c, rel=1e-12)
+        -(1 - 0.25 / np.linalg.norm(c)) * c, rel=1e-12
+    )
     assert summary["fluid_force_final"] == forces["steps"][-1]["F_var"]
 
 
@@ -48,8 +60,9 @@ def test_serial_equals_parallel(runs):
     (s1, f1), (s2, f2) = runs[1], runs[2]
     assert s1["steps"] == s2["steps"]
     np.testing.assert_allclose(s1["trajectory"], s2["trajectory"], rtol=1e-8, atol=1e-12)
-    np.testing.assert_allclose([f["F_var"] for f in f1["steps"]],
-                               [f["F_var"] for f in f2["steps"]], rtol=1e-7, atol=1e-12)
+    np.testing.assert_allclose(
+        [f["F_var"] for f in f1["steps"]], [f["F_var"] for f in f2["steps"]], rtol=1e-7, atol=1e-12
+    )
 
 
 def test_two_force_computations_agree(runs):
@@ -63,8 +76,10 @@ def test_two_force_computations_agree(runs):
     # differences on every level (order about 4 against 2 to 3).
     study = forces["study"]
     assert [s["level"] for s in study] == [0, 1, 2]
-    diffs = {key: np.linalg.norm(np.diff([s[key] for s in study], axis=0), axis=1)
-             for key in ("F_surf", "F_var")}
+    diffs = {
+        key: np.linalg.norm(np.diff([s[key] for s in study], axis=0), axis=1)
+        for key in ("F_surf", "F_var")
+    }
     assert np.all(diffs["F_var"] < diffs["F_surf"])
     assert diffs["F_var"][0] / diffs["F_var"][1] > 8  # order > 3
     assert diffs["F_var"][1] < 1e-4 * np.linalg.norm(study[-1]["F_var"])
@@ -99,4 +114,5 @@ def test_dynamics(runs):
     f_max = max(np.linalg.norm(f["F_var"]) for f in steps)
     assert np.all(energy <= 0.5 * (np.linalg.norm(c[0]) - 0.25) ** 2 + f_max * path + 1e-12)
     assert summary["final_speed"] == pytest.approx(
-        np.linalg.norm(traj[-1, 1:] - traj[-2, 1:]) / dt, rel=0.2)
+        np.linalg.norm(traj[-1, 1:] - traj[-2, 1:]) / dt, rel=0.2
+    )

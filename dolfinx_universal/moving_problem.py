@@ -1,0 +1,371 @@
+"""Solving on a :class:`~dolfinx_universal.moving.MovingDomain`: one matrix for every step.
+
+The background mesh of a moving domain keeps its topology, so its dofmaps, the sparsity
+pattern of every matrix and every compiled form serve all the steps; only the geometry, the
+cell indicator ``md.active`` and the boundary conditions change. Three pieces:
+
+* :func:`reassemble`: assemble a bilinear and a linear form, with boundary conditions,
+  into an existing PETSc matrix and vector;
+* :class:`MovingLinearProblem`: :class:`dolfinx.fem.petsc.LinearProblem` (forms compiled
+  once, one matrix, one vector, one KSP) with the inactive dofs fixed at every step, and
+  assembly and solve callable (and timed) separately;
+* :class:`MovingStokes`: Taylor–Hood Stokes flow around moving rigid bodies in a fixed
+  container, with the force and the torque on the bodies.
+
+Why not plain ``LinearProblem.solve``: it does reassemble into the matrix it created (the
+sparsity stays valid on a moving domain) and its ``bcs`` may be replaced between solves,
+but it fuses assembly and factorisation, so matrix options that the assembly resets
+(``MAT_SYMMETRIC`` for a Cholesky factorisation) cannot be set in between, and neither
+stage can be timed on its own. :class:`MovingLinearProblem` keeps its constructor and its
+objects and splits :meth:`~MovingLinearProblem.solve` in two.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from functools import partial
+from typing import TYPE_CHECKING, Any
+
+from petsc4py import PETSc
+
+import basix.ufl
+import numpy as np
+import numpy.typing as npt
+import ufl
+from dolfinx import fem
+from dolfinx import mesh as dmesh
+from dolfinx.fem.petsc import LinearProblem
+
+if TYPE_CHECKING:
+    from .moving import MovingDomain
+
+__all__ = ["MovingLinearProblem", "MovingStokes", "reassemble"]
+
+
+def reassemble(A, b, a: fem.Form, L: fem.Form, bcs: Sequence[fem.DirichletBC]) -> None:
+    """Assemble ``a`` and ``L`` with ``bcs`` into the existing PETSc matrix and vector.
+
+    On a :class:`~dolfinx_universal.moving.MovingDomain` the sparsity of ``A`` (from
+    :func:`dolfinx.fem.petsc.create_matrix` before the first step) stays valid for every
+    step; only the values and the boundary conditions change.
+    """
+    from dolfinx.fem.petsc import apply_lifting, assemble_matrix, assemble_vector, set_bc
+
+    bcs = list(bcs)
+    A.zeroEntries()
+    assemble_matrix(A, a, bcs=bcs)
+    A.assemble()
+    with b.localForm() as local:
+        local.set(0.0)
+    assemble_vector(b, L)
+    apply_lifting(b, [a], [bcs])
+    b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+    set_bc(b, bcs)
+
+
+def _component(fn: Callable[[str], Any], i: int, side: str) -> Any:
+    """Component ``i`` of ``fn(side)`` (a UFL vector)."""
+    return fn(side)[i]
+
+
+class MovingLinearProblem(LinearProblem):
+    """A linear problem on a moving domain, assembled into the same matrix at every step.
+
+    The forms are written with the indicator (``md.active * ... * dx``); at every
+    :meth:`assemble` the dofs of the unknown's space that belong to no active cell are fixed
+    at zero (before the other conditions, which win where they overlap), so that the system
+    on the whole background is nonsingular.
+
+    Parameters
+    ----------
+    md
+        The moving domain whose :attr:`~dolfinx_universal.moving.MovingDomain.mesh` the
+        forms live on.
+    a, L
+        Bilinear and linear forms (UFL or compiled; one block).
+    petsc_options_prefix, petsc_options, u
+        As in :class:`dolfinx.fem.petsc.LinearProblem` (``u``: the solution function).
+    symmetric
+        Mark the matrix symmetric after each assembly (for ``pc_type: cholesky``).
+    """
+
+    def __init__(
+        self,
+        md: MovingDomain,
+        a: ufl.Form | fem.Form,
+        L: ufl.Form | fem.Form,
+        *,
+        petsc_options_prefix: str,
+        petsc_options: dict | None = None,
+        u: fem.Function | None = None,
+        symmetric: bool = False,
+    ):
+        if isinstance(a, Sequence) or isinstance(L, Sequence):
+            raise TypeError("MovingLinearProblem takes one bilinear and one linear form")
+        if u is None and isinstance(L, fem.Form):  # LinearProblem reads it from a UFL form
+            raise TypeError("give the solution function u with compiled forms")
+        super().__init__(
+            a, L, petsc_options_prefix=petsc_options_prefix, petsc_options=petsc_options, u=u
+        )
+        self.md = md
+        self.symmetric = symmetric
+        self._zero = fem.Function(self.u.function_space)
+
+    def __del__(self):
+        """Leave the PETSc objects to petsc4py's collective garbage collection.
+
+        ``LinearProblem.__del__`` destroys them at once, a collective call; problems held in
+        reference cycles are collected at different times on different ranks, and the
+        ranks then deadlock (seen at the exit of the demos under mpirun).
+        """
+
+    def assemble(self, bcs: Sequence[fem.DirichletBC] = ()) -> None:
+        """Fix the inactive dofs, then assemble with ``bcs`` into ``A`` and ``b`` (collective).
+
+        Sets :attr:`bcs` to the conditions used: the inactive dofs first, then ``bcs``.
+        """
+        inactive = fem.dirichletbc(self._zero, self.md.inactive_dofs(self.u.function_space))
+        self.bcs = [inactive, *bcs]
+        reassemble(self.A, self.b, self.a, self.L, self.bcs)
+        if self.symmetric:
+            self.A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+
+    def solve_assembled(self) -> fem.Function:
+        """Solve the system assembled by :meth:`assemble` into :attr:`u` (collective).
+
+        Raises
+        ------
+        RuntimeError
+            When the KSP does not converge.
+        """
+        self.solver.setOperators(self.A)
+        self.solver.solve(self.b, self.u.x.petsc_vec)
+        self.u.x.scatter_forward()
+        reason = self.solver.getConvergedReason()
+        if reason <= 0:
+            raise RuntimeError(f"the linear solver failed (KSP reason {reason})")
+        return self.u
+
+    def solve(self, bcs: Sequence[fem.DirichletBC] = ()) -> fem.Function:
+        """:meth:`assemble` with ``bcs``, then :meth:`solve_assembled`."""
+        self.assemble(bcs)
+        return self.solve_assembled()
+
+
+VelocityData = npt.ArrayLike | Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]]
+"""A velocity: a constant vector ``(2,)``, or ``x (3, n) -> values (2, n)``."""
+
+DIRECT = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"}
+"""MUMPS LU: the default solver of :class:`MovingStokes`."""
+
+
+class MovingStokes:
+    """Quasi-static Stokes flow around rigid bodies moving in a fixed container.
+
+    Taylor–Hood :math:`P_2/P_1` on the degree-q mesh of ``md``, on the whole background
+    with the indicator :math:`\\chi` = ``md.active``:
+
+    .. math:: a((u, p), (v, q)) = \\int \\chi \\bigl(2\\mu\\, \\varepsilon(u) :
+       \\varepsilon(v) - p \\operatorname{div} v - q \\operatorname{div} u\\bigr)\\, dx = 0.
+
+    The container walls are the background's exterior facets (never moved, always in the
+    fluid), with the velocity ``wall_velocity``; on the immersed boundary Gamma_h the
+    bodies' velocity is given at each :meth:`solve`; the dofs of no fluid cell are zero;
+    the pressure is pinned to zero at ``pressure_point``, a background vertex that stays in
+    the fluid (the forces do not depend on this constant). The spaces, the forms (also
+    those of the forces), the matrix and the solver are built once; each :meth:`solve`
+    locates the dofs on Gamma_h of the current step, reassembles and solves.
+
+    Forces and torques on the bodies (about the origin, positive counter-clockwise) come two
+    ways; ``n`` is the fluid's outward normal, so the bodies' is ``-n``:
+
+    * weak residual (reaction), :meth:`force` and :meth:`torque`:
+      :math:`F \\cdot w = -a((u_h, p_h), (w, 0))` with ``w`` the :math:`P_2` field equal to
+      the rigid motion (``e_x``, ``e_y``, or ``e_z x x``) at the velocity nodes on Gamma_h
+      and zero at every other node; by Green's formula this is
+      :math:`-\\int_\\Gamma \\sigma n \\cdot w\\, ds`, and it superconverges (the error is a
+      product of two energy-norm errors);
+    * surface integrals on the curved Gamma_h, :meth:`surface_force` and
+      :meth:`surface_torque`: traces of :math:`\\nabla u_h` and :math:`p_h`, one order
+      less.
+
+    Parameters
+    ----------
+    md
+        The moving domain (updated by the caller before each :meth:`solve`).
+    mu
+        Viscosity.
+    pressure_point
+        ``(x, y)`` of the vertex where ``p = 0``.
+    wall_velocity
+        Velocity on the container walls (default 0).
+    petsc_options, petsc_options_prefix
+        Solver options (default MUMPS LU, :data:`DIRECT`); ``symmetric=True`` marks the
+        matrix symmetric (for ``pc_type: cholesky``, MUMPS :math:`LDL^T`).
+    """
+
+    def __init__(
+        self,
+        md: MovingDomain,
+        mu: float,
+        pressure_point: Sequence[float],
+        *,
+        wall_velocity: VelocityData = (0.0, 0.0),
+        petsc_options: dict | None = None,
+        petsc_options_prefix: str = "moving_stokes_",
+        symmetric: bool = False,
+    ):
+        self.md, self.mu = md, mu
+        msh = self.mesh = md.mesh
+        msh.topology.create_connectivity(1, 2)
+        P2v = basix.ufl.element("Lagrange", "triangle", 2, shape=(2,))
+        P1 = basix.ufl.element("Lagrange", "triangle", 1)
+        W = self.W = fem.functionspace(msh, basix.ufl.mixed_element([P2v, P1]))
+        self.V, _ = W.sub(0).collapse()
+        self.Q, _ = W.sub(1).collapse()
+        V, Q = self.V, self.Q
+        (u, p), (v, q) = ufl.TrialFunctions(W), ufl.TestFunctions(W)
+        chi = md.active
+        a = (
+            chi
+            * (2 * mu * ufl.inner(self.eps(u), self.eps(v)) - p * ufl.div(v) - q * ufl.div(u))
+            * ufl.dx
+        )
+        zero = fem.Constant(msh, np.zeros(2, dtype=PETSc.ScalarType))
+        L = chi * ufl.inner(zero, v) * ufl.dx
+        self.wh = fem.Function(W)
+        """The solution ``(u_h, p_h)`` of the last :meth:`solve`."""
+        self.problem = MovingLinearProblem(
+            md,
+            fem.form(a),
+            fem.form(L),
+            u=self.wh,
+            symmetric=symmetric,
+            petsc_options_prefix=petsc_options_prefix,
+            petsc_options=DIRECT if petsc_options is None else petsc_options,
+        )
+
+        # The walls: the background's exterior facets.
+        walls = dmesh.exterior_facet_indices(msh.topology)
+        u_wall = fem.Function(V)
+        self._set_velocity(u_wall, wall_velocity)
+        wall_dofs = fem.locate_dofs_topological((W.sub(0), V), 1, walls)
+        self.bc_wall = fem.dirichletbc(u_wall, wall_dofs, W.sub(0))
+        px, py = map(float, pressure_point)
+        corner = fem.locate_dofs_geometrical(
+            (W.sub(1), Q), lambda y: np.isclose(y[0], px) & np.isclose(y[1], py)
+        )
+        owned = np.count_nonzero(corner[1] < Q.dofmap.index_map.size_local)
+        if md.comm.allreduce(owned) != 1:
+            raise ValueError(f"pressure_point {pressure_point} is not one vertex of the mesh")
+        self.bc_pressure = fem.dirichletbc(fem.Function(Q), corner, W.sub(1))
+        self.u_body = fem.Function(V, name="body_velocity")
+        """The bodies' velocity of the last :meth:`solve` (at every node)."""
+        self._rotation = fem.Function(V)  # e_z x x at every node
+
+        # The rigid motions at the nodes on Gamma_h (zero elsewhere), for the reactions.
+        self._tests = [fem.Function(V) for _ in range(3)]  # e_x, e_y, e_z x x
+        uh, ph = ufl.split(self.wh)
+        self._reaction = [
+            fem.form(
+                -chi * (2 * mu * ufl.inner(self.eps(uh), self.eps(w)) - ph * ufl.div(w)) * ufl.dx
+            )
+            for w in self._tests
+        ]
+        n, x = ufl.FacetNormal(msh), ufl.SpatialCoordinate(msh)
+
+        def traction(side: str):
+            """``sigma nu`` with ``nu = -n`` the bodies' outward normal."""
+            return -ufl.dot(self.sigma(uh, ph)(side), n(side))
+
+        self._surface = [
+            fem.form(md.immersed_integral(partial(_component, traction, i))) for i in range(2)
+        ] + [
+            fem.form(
+                md.immersed_integral(lambda s: x[0](s) * traction(s)[1] - x[1](s) * traction(s)[0])
+            )
+        ]
+        self.body_dofs: list[npt.NDArray[np.int32]] = [np.empty(0, np.int32)] * 2
+        """``[dofs of W, dofs of V]`` of the velocity on Gamma_h at the last solve."""
+
+    def eps(self, w):
+        """The strain rate ``sym(grad w)``."""
+        return ufl.sym(ufl.grad(w))
+
+    def sigma(self, w, r):
+        """The Cauchy stress ``-r I + 2 mu eps(w)``."""
+        return -r * ufl.Identity(2) + 2 * self.mu * self.eps(w)
+
+    @staticmethod
+    def _set_velocity(f: fem.Function, value: VelocityData) -> None:
+        if callable(value):
+            f.interpolate(value)
+        else:
+            f.x.array.reshape(-1, 2)[:] = np.asarray(value, dtype=np.float64)
+
+    def boundary_conditions(
+        self, boundary_velocity: VelocityData = (0.0, 0.0), angular_velocity: float = 0.0
+    ) -> list[fem.DirichletBC]:
+        """The conditions of the current step, after the inactive dofs: the walls, the
+        bodies' velocity ``boundary_velocity + angular_velocity e_z x x`` on Gamma_h, the
+        pressure pin. Sets the rigid test fields of :meth:`force` and :meth:`torque`."""
+        W, V = self.W, self.V
+        on_gamma = self.md.immersed_dofs((W.sub(0), V))
+        assert isinstance(on_gamma, list)  # a (sub-space, collapsed) pair gives two arrays
+        self.body_dofs = on_gamma
+        rot = self._rotation
+        rot.interpolate(lambda y: np.vstack([-y[1], y[0]]))
+        self._set_velocity(self.u_body, boundary_velocity)
+        if angular_velocity:
+            self.u_body.x.array[:] += angular_velocity * rot.x.array
+        for i, w in enumerate(self._tests):
+            w.x.array[:] = 0.0
+            if i < 2:  # unrolled: component i at the dofs = i (mod 2)
+                w.x.array[on_gamma[1][on_gamma[1] % 2 == i]] = 1.0
+            else:
+                w.x.array[on_gamma[1]] = rot.x.array[on_gamma[1]]
+        return [self.bc_wall, fem.dirichletbc(self.u_body, on_gamma, W.sub(0)), self.bc_pressure]
+
+    def solve(
+        self, boundary_velocity: VelocityData = (0.0, 0.0), angular_velocity: float = 0.0
+    ) -> tuple[fem.Function, fem.Function]:
+        """Solve on the current domain; return collapsed copies ``(u_h, p_h)`` (collective).
+
+        ``boundary_velocity`` (constant ``(2,)`` or ``x -> (2, n)``) plus
+        ``angular_velocity`` times ``e_z x x`` is the velocity of the bodies on Gamma_h.
+        The solution stays in :attr:`wh`; use :meth:`assemble` and :meth:`solve_assembled`
+        to time the stages.
+        """
+        self.assemble(boundary_velocity, angular_velocity)
+        self.solve_assembled()
+        return self.wh.sub(0).collapse(), self.wh.sub(1).collapse()
+
+    def assemble(
+        self, boundary_velocity: VelocityData = (0.0, 0.0), angular_velocity: float = 0.0
+    ) -> None:
+        """Boundary conditions of the current step and assembly into the same matrix."""
+        self.problem.assemble(self.boundary_conditions(boundary_velocity, angular_velocity))
+
+    def solve_assembled(self) -> fem.Function:
+        """Solve what :meth:`assemble` assembled into :attr:`wh`."""
+        return self.problem.solve_assembled()
+
+    def _sum(self, forms: Sequence[fem.Form]) -> npt.NDArray[np.float64]:
+        comm = self.md.comm
+        return np.array([comm.allreduce(fem.assemble_scalar(f)) for f in forms])
+
+    def force(self) -> npt.NDArray[np.float64]:
+        """Fluid force on the bodies, ``(2,)``, from the weak residual (collective)."""
+        return self._sum(self._reaction[:2])
+
+    def torque(self) -> float:
+        """Fluid torque on the bodies about the origin, from the weak residual (collective)."""
+        return float(self._sum(self._reaction[2:])[0])
+
+    def surface_force(self) -> npt.NDArray[np.float64]:
+        """Fluid force on the bodies, ``(2,)``: ``-int_Gamma_h sigma n ds`` (collective)."""
+        return self._sum(self._surface[:2])
+
+    def surface_torque(self) -> float:
+        """Fluid torque about the origin, ``int_Gamma_h x x (sigma nu) ds`` (collective)."""
+        return float(self._sum(self._surface[2:])[0])
