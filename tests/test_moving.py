@@ -9,6 +9,7 @@ import basix.ufl
 import numpy as np
 import pytest
 import ufl
+from conftest import needs_ranks
 from dolfinx import fem
 from dolfinx import mesh as dmesh
 from dolfinx.fem.petsc import create_matrix, create_vector
@@ -122,23 +123,21 @@ def test_in_place_equals_submesh_and_no_recompilation():
         assert compiled[0] == first
 
 
-def test_moving_under_mpi(tmp_path):
-    from conftest import run_mpi
+def _moving_reports(c: MPI.Comm) -> list:
+    bg = du.equilateral_mesh(c, [[-1, -1], [1, 1]], 0.08)
+    md = MovingDomain(bg, degree=2)
+    out = []
+    for a in np.linspace(0, 1, 4):
+        r = md.update(du.Domain(None, [du.Ellipse((0.1 * a, 0), 0.5, 0.3, angle=a)]))
+        q = r.quality
+        out.append((r.num_active_cells, q["n_positively_cut"], round(q["theta_min_deg"], 9)))
+    return out
 
-    code = (
-        "import dolfinx_universal as du, numpy as np\n"
-        "from mpi4py import MPI\n"
-        "from dolfinx_universal.moving import MovingDomain\n"
-        "bg = du.equilateral_mesh(MPI.COMM_WORLD, [[-1, -1], [1, 1]], 0.08)\n"
-        "md = MovingDomain(bg, degree=2)\n"
-        "for a in np.linspace(0, 1, 4):\n"
-        "    r = md.update(du.Domain(None, [du.Ellipse((0.1 * a, 0), 0.5, 0.3, angle=a)]))\n"
-        "    if MPI.COMM_WORLD.rank == 0:\n"
-        "        print(r.num_active_cells, r.quality['n_positively_cut'],"
-        " round(r.quality['theta_min_deg'], 9))\n"
-    )
-    outs = [run_mpi(n, ["-c", code], timeout=120).stdout for n in (1, 2, 3)]
-    assert outs[0] == outs[1] == outs[2] and len(outs[0].splitlines()) == 4
+
+@pytest.mark.mpi
+@needs_ranks(2)
+def test_moving_under_mpi():
+    assert _moving_reports(comm) == _moving_reports(MPI.COMM_SELF)
 
 
 def test_graded_background_with_level_changes_near_gamma():

@@ -9,6 +9,7 @@ from mpi4py import MPI
 import basix
 import numpy as np
 import pytest
+from conftest import needs_ranks
 from dolfinx import fem
 from dolfinx import mesh as dmesh
 
@@ -357,15 +358,49 @@ def test_large_conforming_mesh_inset(tmp_path):
     assert_png(tmp_path / "big_conforming.png")
 
 
-def test_plot_mpi(tmp_path):
-    from conftest import run_mpi_json
+def _drawn(c: MPI.Comm, png) -> dict | None:
+    """Draw a curved disc and a field on ``c``; what rank 0 drew (None elsewhere)."""
+    from dolfinx_universal.plotting import GAMMA_H_COLOR, field_triangulation
 
-    serial = run_mpi_json(1, "plot_mpi.py", tmp_path / "serial.json", str(tmp_path / "s"))
-    parallel = run_mpi_json(2, "plot_mpi.py", tmp_path / "parallel.json", str(tmp_path / "p"))
-    assert parallel["size"] == 2 and serial["size"] == 1
-    for key in ("num_cells", "num_gamma_segments", "legend", "field_area", "field_points"):
-        assert parallel[key] == pytest.approx(serial[key], rel=1e-12), key
-    assert (tmp_path / "p" / "mesh.png").read_bytes()[:8] == PNG
+    bg = du.equilateral_mesh(c, [[-1.5, -1.5], [1.5, 1.5]], 0.25)
+    cm = du.conform(bg, du.Circle([0.0, 0.0], 1.0))
+    cv = du.curved_mesh(cm, 3)
+    fig, ax = plot_conforming(None, cm, mesh=cv, title=f"{c.size} ranks")
+    V = fem.functionspace(cv.mesh, ("Lagrange", 2))
+    u = fem.Function(V, name="u")
+    u.interpolate(lambda x: x[0] ** 2 - x[1])
+    pts, tris, vals = field_triangulation(u)
+    fig2, ax2 = plot_function(None, u, show_mesh=True)
+    if c.rank != 0:
+        assert fig is None and ax is None and pts is None and fig2 is None
+        return None
+    save(fig, png)
+    gamma = [
+        col
+        for col in ax.collections
+        if isinstance(col, LineCollection)
+        and np.allclose(col.get_colors()[0], to_rgba(GAMMA_H_COLOR))
+    ]
+    a = pts[tris]
+    d1, d2 = a[:, 1] - a[:, 0], a[:, 2] - a[:, 0]
+    return {
+        "num_cells": len(ax.collections[1].get_paths()),
+        "num_gamma_segments": len(gamma[0].get_segments()),
+        "legend": len(ax.get_legend().get_texts()),
+        "field_area": float((0.5 * (d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])).sum()),
+        "field_points": len(pts),
+    }
+
+
+@pytest.mark.mpi
+@needs_ranks(2)
+def test_plot_mpi(mpi_tmp_path):
+    parallel = _drawn(MPI.COMM_WORLD, mpi_tmp_path / "mesh.png")
+    serial = _drawn(MPI.COMM_SELF, mpi_tmp_path / f"serial{MPI.COMM_WORLD.rank}.png")
+    if MPI.COMM_WORLD.rank == 0:
+        for key in ("num_cells", "num_gamma_segments", "legend", "field_area", "field_points"):
+            assert parallel[key] == pytest.approx(serial[key], rel=1e-12), key
+        assert (mpi_tmp_path / "mesh.png").read_bytes()[:8] == PNG
 
 
 def test_missing_matplotlib_message(monkeypatch):
