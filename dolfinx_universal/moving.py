@@ -6,7 +6,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from mpi4py import MPI
 
@@ -86,9 +86,10 @@ class MovingDomain:
     map
         ``"I"``/``"G"`` (blend ``G_h``) or ``"I~"``/``"G~"`` (``G~_h``); see
         :data:`~dolfinx_universal.curved.MAPS`.
-    R_r, alpha, eta, relaxation_factor, local_size, min_angle, on_low_quality
-        See :class:`~dolfinx_universal.conform.UniversalMesh` (``local_size=True`` for graded
-        backgrounds).
+    options
+        Keyword options of :class:`~dolfinx_universal.conform.UniversalMesh`: ``R_r``,
+        ``alpha``, ``eta``, ``relaxation_factor``, ``local_size`` (``True`` for graded
+        backgrounds), ``min_angle``, ``on_low_quality``.
 
     See Also
     --------
@@ -100,27 +101,11 @@ class MovingDomain:
         background: dmesh.Mesh,
         degree: int = 2,
         map: str = "I",
-        *,
-        R_r: float | None = None,
-        alpha: float | None = None,
-        eta: float = 0.2,
-        relaxation_factor: float = 3.0,
-        local_size: bool = False,
-        min_angle: float = 10.0,
-        on_low_quality: str = "warn",
+        **options: Any,
     ):
         if map not in MAPS:
             raise ValueError(f"unknown map {map!r}: choose one of {MAPS}")
-        self.universal = UniversalMesh(
-            background,
-            R_r=R_r,
-            alpha=alpha,
-            eta=eta,
-            relaxation_factor=relaxation_factor,
-            local_size=local_size,
-            min_angle=min_angle,
-            on_low_quality=on_low_quality,
-        )
+        self.universal = UniversalMesh(background, **options)
         self.refinement_rounds = 0
         """Local refinements made by :meth:`from_motion` (0 otherwise)."""
         self.degree, self.map = int(degree), map
@@ -164,11 +149,9 @@ class MovingDomain:
         degree: int = 2,
         map: str = "I",
         box: npt.ArrayLike | None = None,
-        eta: float = 0.2,
-        relaxation_factor: float = 3.0,
-        min_angle: float = 10.0,
         size_factor: float | None = None,
         max_rounds: int = 8,
+        **options: Any,
     ) -> MovingDomain:
         """A moving domain on one graded background sized for a whole motion (collective).
 
@@ -188,12 +171,15 @@ class MovingDomain:
             Largest mesh size.
         times
             Times at which to evaluate a callable ``motion``.
-        degree, map, eta, relaxation_factor
+        degree, map
             As in :class:`MovingDomain`.
         box
             The background's extent (default: the positions' bounding boxes plus a margin).
-        min_angle, size_factor, max_rounds
+        size_factor, max_rounds
             As in :func:`~dolfinx_universal.domain.mesh_domain`.
+        options
+            ``eta``, ``relaxation_factor``, ``min_angle`` (default 10 degrees) as in
+            :class:`~dolfinx_universal.conform.UniversalMesh` (``local_size`` is on).
 
         Raises
         ------
@@ -218,22 +204,14 @@ class MovingDomain:
             h,
             degree=degree,
             box=box,
-            relaxation_factor=relaxation_factor,
+            relaxation_factor=options.get("relaxation_factor", 3.0),
             size_factor=size_factor,
         )
+        options = {**options, "local_size": True}
         rounds = 0
         while True:
             background = graded_mesh(comm, box_arr, field, max_size=h, root_size=h / EDGE_FACTOR)
-            md = cls(
-                background,
-                degree,
-                map,
-                eta=eta,
-                relaxation_factor=relaxation_factor,
-                local_size=True,
-                min_angle=min_angle,
-                on_low_quality="raise",
-            )
+            md = cls(background, degree, map, **options, on_low_quality="raise")
             k = 0
             try:
                 for k in range(len(positions)):

@@ -1070,11 +1070,6 @@ def plot_function(
     ax: Axes | None,
     u: fem.Function,
     *,
-    cells: npt.ArrayLike | None = None,
-    active: Any = None,
-    subdivisions: int | None = None,
-    curved_subdivisions: int | None = None,
-    component: int | str | None = "magnitude",
     cmap: Any = "viridis",
     vmin: float | None = None,
     vmax: float | None = None,
@@ -1092,6 +1087,7 @@ def plot_function(
     inset_loc: str | None = None,
     title: str | None = None,
     figsize: tuple[float, float] = (7.5, 6.5),
+    **field: Any,
 ) -> tuple[Figure | None, Axes | None]:
     """Colour plot of a function on its (curved) cells, reaching the curved boundary.
 
@@ -1106,8 +1102,11 @@ def plot_function(
     ----------
     ax
         Axes on rank 0, or ``None`` for a new figure.
-    u, cells, active, subdivisions, curved_subdivisions, component
-        See :func:`field_triangulation`.
+    u
+        The function.
+    field
+        ``cells``, ``active``, ``subdivisions``, ``curved_subdivisions``, ``component``: see
+        :func:`field_triangulation`.
     cmap, vmin, vmax, shading
         Passed to ``tripcolor`` (``shading="flat"`` colours sub-triangles uniformly).
     colorbar, label
@@ -1131,15 +1130,10 @@ def plot_function(
     _mpl()
     msh = u.function_space.mesh
     degree, variant = _geometry_degree(msh)
-    points, triangles, values = field_triangulation(
-        u,
-        cells=cells,
-        active=active,
-        subdivisions=subdivisions,
-        curved_subdivisions=curved_subdivisions,
-        component=component,
-    )
-    sel = _active_cells(msh, active, cells)
+    points, triangles, values = field_triangulation(u, **field)
+    sel = _active_cells(msh, field.get("active"), field.get("cells"))
+    curved_subdivisions = field.get("curved_subdivisions")
+    component = field.get("component", "magnitude")
     nodes = gather_cells(msh, cells=sel) if (show_mesh or show_outline) else None
     if msh.comm.rank != 0:
         return None, None
