@@ -33,7 +33,7 @@ import numpy as np
 import dolfinx_universal as du
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from mesh_checks import check_mesh  # noqa: E402
+from mesh_checks import check_domain_mesh  # noqa: E402
 from random_domains import KINDS, random_domain  # noqa: E402
 
 OUTCOMES = ("ok", "meshing_error", "wrong_mesh", "exception", "skipped")
@@ -111,16 +111,7 @@ def run_one(comm: MPI.Comm, seed: int, degree: int, max_cells: float, ref: bool)
     label = f"seed={seed} kind={d.kind} degree={degree}"
     t1 = time.perf_counter()
     try:
-        r = check_mesh(
-            result.mesh,
-            result.facet_tags,
-            d.boundary,
-            d.exact_area,
-            n_curves=d.n_curves,
-            n_pieces=d.n_pieces,
-            outer=False,
-            label=label,
-        )
+        r = check_domain_mesh(result.mesh, result.facet_tags, d, label)
     except Exception as e:  # noqa: BLE001
         rec.update(
             outcome="exception",

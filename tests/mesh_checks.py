@@ -41,7 +41,7 @@ from scipy.sparse.csgraph import connected_components
 
 import dolfinx_universal as du
 
-__all__ = ["check_mesh", "reference_lattice"]
+__all__ = ["check_domain_mesh", "check_mesh", "reference_lattice"]
 
 Float = npt.NDArray[np.float64]
 Int = npt.NDArray[np.int64]
@@ -408,3 +408,18 @@ def check_mesh(
         "n_pieces": int(pieces),
         "failures": failures,
     }
+
+
+def check_domain_mesh(mesh: dmesh.Mesh, facet_tags: dmesh.MeshTags, d: Any, label: str) -> dict:
+    """:func:`check_mesh` of a mesh of the random domain ``d`` (``random_domains``): its
+    exact area, curves and pieces, no OUTER facets (the domains are bounded)."""
+    return check_mesh(
+        mesh,
+        facet_tags,
+        d.boundary,
+        d.exact_area,
+        n_curves=d.n_curves,
+        n_pieces=d.n_pieces,
+        outer=False,
+        label=label,
+    )

@@ -18,7 +18,7 @@ from mpi4py import MPI
 
 import pytest
 from conftest import needs_ranks
-from mesh_checks import check_mesh
+from mesh_checks import check_domain_mesh
 from random_domains import KINDS, random_domain
 
 import dolfinx_universal as du
@@ -77,16 +77,7 @@ def run_case(seed: int, degree: int, comm: MPI.Comm = MPI.COMM_WORLD) -> dict:
     except du.MeshingError as e:
         return {"label": label, "failures": [f"{label}: MeshingError: {e}"], "domain": d}
     t1 = time.perf_counter()
-    r = check_mesh(
-        res.mesh,
-        res.facet_tags,
-        d.boundary,
-        d.exact_area,
-        n_curves=d.n_curves,
-        n_pieces=d.n_pieces,
-        outer=False,
-        label=label,
-    )
+    r = check_domain_mesh(res.mesh, res.facet_tags, d, label)
     r["failures"] += [
         f"{label}: {m}" for m in certificate_failures(res.certificate, r, d.n_curves, d.n_pieces)
     ]
