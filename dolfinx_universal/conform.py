@@ -237,6 +237,9 @@ class UniversalMesh:
     on_low_quality
         ``"warn"`` (a :class:`UserWarning` naming the places) or ``"raise"`` (a
         :class:`~dolfinx_universal.validation.MeshingError`).
+    relax
+        Relax the vertices near Gamma after ``M_h`` to improve the worst element quality
+        (connectivity unchanged).
     """
 
     def __init__(
@@ -250,6 +253,7 @@ class UniversalMesh:
         local_size: bool = False,
         min_angle: float = 10.0,
         on_low_quality: str = "warn",
+        relax: bool = False,
     ) -> None:
         _check_background(background)
         eta, min_angle = float(eta), float(min_angle)
@@ -261,6 +265,7 @@ class UniversalMesh:
             raise ValueError(f"on_low_quality must be 'warn' or 'raise', got {on_low_quality!r}")
         self.background = background
         self.eta, self.min_angle, self.on_low_quality = eta, min_angle, on_low_quality
+        self.relax = bool(relax)
         self._samples: tuple[object, float, CurveSamples] | None = None
         comm = self.comm = background.comm
         topo = background.topology
@@ -494,6 +499,7 @@ def conform(
     background: dmesh.Mesh, boundary: Boundary, *, R_r: float | None = None,
     alpha: float | None = None, eta: float = 0.2, relaxation_factor: float = 3.0,
     local_size: bool = False, min_angle: float = 10.0, on_low_quality: str = "warn",
+    relax: bool = False,
 ) -> ConformingMesh:  # fmt: skip
     """Conform a background triangulation to the domain bounded by ``boundary``.
 
@@ -506,7 +512,7 @@ def conform(
         The background mesh, as in :class:`UniversalMesh`.
     boundary
         The domain (signs, closest points, normals).
-    R_r, alpha, eta, relaxation_factor, local_size, min_angle, on_low_quality
+    R_r, alpha, eta, relaxation_factor, local_size, min_angle, on_low_quality, relax
         Options of :class:`UniversalMesh`.
 
     Returns
@@ -521,6 +527,6 @@ def conform(
     """
     um = UniversalMesh(
         background, R_r=R_r, alpha=alpha, eta=eta, relaxation_factor=relaxation_factor,
-        local_size=local_size, min_angle=min_angle, on_low_quality=on_low_quality,
+        local_size=local_size, min_angle=min_angle, on_low_quality=on_low_quality, relax=relax,
     )  # fmt: skip
     return um.conform(boundary)
