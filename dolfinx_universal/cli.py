@@ -496,7 +496,7 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
     from .conform import IMMERSED, OUTER, conform
     from .curved import curved_mesh
     from .demo_support import versions
-    from .domain import _auto_box, mesh_domain
+    from .domain import default_box, mesh_domain
     from .io import tags_path, write_mesh
     from .quality import quality_report
     from .validation import MeshingError
@@ -525,7 +525,7 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
     if args.uniform or args.margin is not None:
         box = np.array([bbox[0] - margin, bbox[1] + margin])
     else:
-        box = _auto_box(boundary, h, args.rr)
+        box = default_box(boundary, h, args.rr)
         margin = float(bbox[0, 0] - box[0, 0])
     size = box[1] - box[0]
     n_estimate = 2.0 * (size[0] / h + 2) * (size[1] / (h * math.sqrt(3) / 2) + 2)

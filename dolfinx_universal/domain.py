@@ -20,7 +20,7 @@ from .quality import quality_report
 from .sizing import SizeField, feature_size, target_sizes
 from .validation import MeshingError, where
 
-__all__ = ["Certificate", "MeshedDomain", "check_components", "mesh_domain"]
+__all__ = ["Certificate", "MeshedDomain", "check_components", "default_box", "mesh_domain"]
 
 Float = npt.NDArray[np.float64]
 
@@ -164,8 +164,26 @@ def _curvature_radius(points: Float, labels: npt.NDArray) -> Float:
     return out
 
 
-def _auto_box(boundary: Boundary, h: float, relaxation_factor: float) -> Float:
-    """The boundary's bounding box plus a margin that keeps the band off the box boundary."""
+def default_box(boundary: Boundary, h: float, relaxation_factor: float = 3.0) -> Float:
+    """The background box :func:`mesh_domain` uses when it is given none.
+
+    The boundary's bounding box enlarged on every side by ``(relaxation_factor + 2) h``: the
+    band of vertices within ``R_r = relaxation_factor h`` of Gamma, and the cells around it,
+    then stay off the box boundary.
+
+    Parameters
+    ----------
+    boundary
+        The domain.
+    h
+        Largest mesh size.
+    relaxation_factor
+        ``R_r / h``, as in :func:`mesh_domain`.
+
+    Returns
+    -------
+    ``[[x_min, y_min], [x_max, y_max]]``, ``(2, 2)``.
+    """
     bbox = np.asarray(boundary.bounding_box(), dtype=np.float64).reshape(2, 2)
     margin = (relaxation_factor + 2.0) * h
     return np.array([bbox[0] - margin, bbox[1] + margin])
@@ -259,7 +277,7 @@ def _sizing(
         feats.append(feature)
         targets.append(target_sizes(feature, h, degree, size_factor))
         rhos.append(_curvature_radius(samples.points, samples.labels))
-        boxes.append(_auto_box(b, h, relaxation_factor))
+        boxes.append(default_box(b, h, relaxation_factor))
     points, feature = np.concatenate(pts), np.concatenate(feats)
     target, rho = np.concatenate(targets), np.concatenate(rhos)
     if box is None:
@@ -326,7 +344,8 @@ def mesh_domain(
     box
         ``[[x0, y0], [x1, y1]]``: the background's extent, whose boundary is the outer
         boundary of the mesh where the domain reaches it (e.g. a channel with
-        ``Domain(None, bodies)``). Default: the boundary's bounding box plus ``(R_r/h + 2) h``.
+        ``Domain(None, bodies)``). Default: :func:`default_box`, the boundary's bounding box
+        plus ``(R_r/h + 2) h``.
     eta, relaxation_factor
         See :class:`~dolfinx_universal.conform.UniversalMesh` (``R_r = relaxation_factor``
         times the local size).
