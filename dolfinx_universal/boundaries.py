@@ -73,6 +73,24 @@ def _distance(distance: float) -> float:
     return d
 
 
+def _distances(distance: float | npt.ArrayLike, n: int) -> Float:
+    """``distance`` (one, or one per point) as ``n`` finite numbers ``>= 0``."""
+    if np.ndim(distance) == 0:
+        return np.full(n, _distance(float(distance)))  # type: ignore[arg-type]
+    d = np.asarray(distance, dtype=np.float64)
+    if d.shape != (n,):
+        raise ValueError(f"distance must be a number or one per point ({n},), got {d.shape}")
+    if not (np.isfinite(d) & (d >= 0)).all():
+        raise ValueError("distance must be finite numbers >= 0")
+    return d
+
+
+def _native(obj: object, cls: type, *names: str) -> bool:
+    """Whether ``obj``'s class keeps ``cls``'s methods ``names`` (no subclass overrides them):
+    shortcuts that bypass them are then exact."""
+    return all(getattr(type(obj), n) is getattr(cls, n) for n in names)
+
+
 def _call(fn: ArrayFn, arg: Float, shape: tuple[int, ...]) -> Float:
     """``fn(arg)`` as a float64 array of the given shape (scalars are broadcast)."""
     return np.broadcast_to(np.asarray(fn(arg), dtype=np.float64), shape).copy()
@@ -158,13 +176,24 @@ def _candidates(
     (``d_min``: nearest sample distance). With ``reach`` at least half the longest arc between
     consecutive samples, this includes a sample next to the interval of the global closest
     point (the sample nearest to it is within ``d + reach``; if the distance is unimodal over
-    neighbouring intervals, the discrete minimum is that sample or its neighbour). The k
-    nearest samples settle most points; the rest (far from Gamma) are searched exhaustively.
+    neighbouring intervals, the discrete minimum is that sample or its neighbour).
+
+    Search: the samples within ``d_min + reach`` of most points are a few neighbours along the
+    loop of the nearest sample. A window of :data:`_WINDOW` samples on each side of it is
+    searched directly, and a ball count of the k-d tree proves that no other sample is that
+    close (else the point goes on). The k nearest samples (k = 16, then 64) settle most
+    other points; the rest (far from Gamma) are searched exhaustively. The candidates do not
+    depend on the route.
     """
     ps: list[Int] = []
     ss: list[Int] = []
-    todo = np.arange(len(x))
     m = len(pts)
+    todo = np.arange(len(x))
+    if len(x):
+        done, pi, si = _window_candidates(x, tree, pts, nxt, reach)
+        ps.append(pi)
+        ss.append(si)
+        todo = todo[~done]
     for k in (min(16, m), min(64, m)):
         if not todo.size:
             break
@@ -185,7 +214,43 @@ def _candidates(
         r, c = np.nonzero(cand)
         ps.append(chunk[r])
         ss.append(c)
+    if not ps:
+        return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
     return np.concatenate(ps), np.concatenate(ss)
+
+
+_WINDOW = 16
+"""Samples on each side of the nearest one searched directly by :func:`_candidates`."""
+
+
+def _window_candidates(
+    x: Float, tree: cKDTree, pts: Float, nxt: Int, reach: float
+) -> tuple[Bool, Int, Int]:
+    """The candidates of :func:`_candidates` for the points whose samples within reach all
+    lie within :data:`_WINDOW` samples of the nearest one along its loop.
+
+    Returns the mask of the points settled, and their pairs ``(point, sample)``.
+    """
+    n, w = len(pts), _WINDOW
+    d0, j0 = tree.query(x)
+    lim = d0 + reach
+    ends = np.flatnonzero(nxt != np.arange(1, n + 1))  # last sample of each loop
+    loop = np.searchsorted(ends, j0)
+    start = nxt[ends][loop]
+    size = ends[loop] - start + 1
+    off = np.arange(-w - 1, w + 2)
+    win = start[:, None] + (j0 - start)[:, None] + off
+    win = start[:, None] + (win - start[:, None]) % size[:, None]
+    d = _norm(x[:, None, :] - pts[win])  # (points, 2 w + 3): the window and one more each side
+    inner = d[:, 1:-1]
+    # A ball count, slightly enlarged against rounding: all samples that close are inner.
+    wide = lim * (1 + 1e-9) + 1e-300
+    count = tree.query_ball_point(x, wide, return_length=True)
+    done = (size > 2 * w + 3) & (count == (inner <= wide[:, None]).sum(axis=1))
+    close = (inner <= lim[:, None]) & (inner <= d[:, :-2]) & (inner <= d[:, 2:])
+    close[:, w] = True  # the nearest sample
+    r, c = np.nonzero(close & done[:, None])
+    return done, r, win[r, c + 1]
 
 
 def _best(pidx: Int, dist: Float) -> Int:
@@ -241,7 +306,10 @@ class _Grid:
     lies in a connected region free of Gamma, whose sign (code -1 or +1) is that of one
     representative centre by ray casting against the dense polyline (exact: the centre is
     more than a cell away from Gamma, the polyline within a tiny fraction of a cell).
-    ``lb`` is a lower bound of the distance from the cell to Gamma.
+    ``lb`` is a lower bound of the distance from the cell to Gamma; the distance of a point
+    of the cell is at most ``lb + 3 sqrt(2) h`` (``h`` the cell size: the nearest marked cell
+    is within ``lb + sqrt(2) h`` of the point, and a sample within ``2 sqrt(2) h`` of every
+    point of a marked cell).
     """
 
     def __init__(self, loops_at: Callable[[float], list[Float]], bbox: Float) -> None:
@@ -360,7 +428,39 @@ class Boundary(abc.ABC):
         """Unit tangents ``(-n_y, n_x)`` at ``pi(y)``, ``(n, 2)``: Omega lies on their left."""
         return _rot90(self.normal(y))
 
-    def near(self, x: npt.ArrayLike, distance: float) -> Bool:
+    def project_normal(self, x: npt.ArrayLike) -> tuple[Float, Float, Float]:
+        """Signed distances, closest points and the outward normals there, from one projection.
+
+        Parameters
+        ----------
+        x
+            Points ``(n, 2)``.
+
+        Returns
+        -------
+        phi
+            ``(n,)``: as in :meth:`project`.
+        y
+            ``(n, 2)``: the closest points ``pi(x)``.
+        normal
+            ``(n, 2)``: the unit outward normals ``N(pi(x))``.
+        """
+        x = _as_points(x)
+        phi, y = self.project(x)
+        return phi, y, self.normal(y)
+
+    def _closest_normal(self, x: Float) -> tuple[Float, Float]:
+        """Closest points ``(n, 2)`` and the outward normals there ``(n, 2)``."""
+        y = self.closest_point(x)
+        return y, self.normal(y)
+
+    def _sign_closest_normal(self, x: Float) -> tuple[Float, Float, Float]:
+        """:meth:`project_normal` as :meth:`Boundary.project` computes ``phi`` (the sign and
+        the distance to the closest point), with the normals of :meth:`_closest_normal`."""
+        y, n = self._closest_normal(x)
+        return self.sign(x) * _norm(x - y), y, n
+
+    def near(self, x: npt.ArrayLike, distance: float | npt.ArrayLike) -> Bool:
         """Cheap superset of the points within ``distance`` of Gamma.
 
         Parameters
@@ -368,7 +468,7 @@ class Boundary(abc.ABC):
         x
             Points ``(n, 2)``.
         distance
-            Distance ``>= 0``.
+            Distance ``>= 0``: one for all points, or one per point ``(n,)``.
 
         Returns
         -------
@@ -377,12 +477,22 @@ class Boundary(abc.ABC):
         discards most points; the nearest dense sample of Gamma, within ``distance + spacing``
         of every point within ``distance``, settles the others).
         """
-        x, d = _as_points(x), _distance(distance)
-        mask = self._lower_bound(x) <= d
+        x = _as_points(x)
+        d = _distances(distance, len(x))
+        lb = self._lower_bound(x)
+        mask = lb <= d
         if mask.any():
             g = self._grid
-            dist = g.tree.query(x[mask], distance_upper_bound=(d + g.spacing) * (1 + 1e-12))[0]
-            mask[mask] = np.isfinite(dist)
+            test = mask.copy()
+            if type(self)._lower_bound is Boundary._lower_bound:
+                # In the grid the bound is within 3 sqrt(2) cells of the distance (see
+                # _Grid): a point whose bound is that much below ``distance`` is near.
+                sure = g._cells(x)[0] & (lb * (1 + 1e-5) + 3 * np.sqrt(2.0) * g.h <= d)
+                test &= ~sure
+            if test.any():
+                reach = (d[test] + g.spacing) * (1 + 1e-12)
+                dist = g.tree.query(x[test], distance_upper_bound=float(reach.max()))[0]
+                mask[test] = dist <= reach
         return mask
 
     # Private hooks of the acceleration grid, overridden where cheaper or not applicable.
@@ -395,6 +505,12 @@ class Boundary(abc.ABC):
             if longest <= spacing:
                 return [p]
             n = int(np.ceil(n * longest / spacing * 1.1))
+
+    def _loops_normals(self, spacing: float) -> tuple[list[Float], list[Float]]:
+        """:meth:`_loops` and the outward normals of Omega at their points (same shapes)."""
+        loops = self._loops(spacing)
+        normals = np.asarray(self.normal(np.concatenate(loops)), dtype=np.float64)
+        return loops, np.split(normals, np.cumsum([len(q) for q in loops])[:-1])
 
     def _length(self) -> float:
         """Length of Gamma (approximate)."""
@@ -443,8 +559,15 @@ class Circle(Boundary):
     def normal(self, y: npt.ArrayLike) -> Float:
         return self._direction(y)
 
-    def near(self, x: npt.ArrayLike, distance: float) -> Bool:
-        return self._lower_bound(_as_points(x)) <= _distance(distance)
+    def _closest_normal(self, x: Float) -> tuple[Float, Float]:
+        if not _native(self, Circle, "closest_point", "normal"):
+            return Boundary._closest_normal(self, x)
+        u = self._direction(x)
+        return self.center + self.radius * u, u
+
+    def near(self, x: npt.ArrayLike, distance: float | npt.ArrayLike) -> Bool:
+        x = _as_points(x)
+        return self._lower_bound(x) <= _distances(distance, len(x))
 
     def _lower_bound(self, x: Float) -> Float:
         return np.abs(_norm(x - self.center) - self.radius)
@@ -814,6 +937,28 @@ class ParametricCurve(Boundary):
         s[m] = self._exact_sign(x[m], t[m], y[m])
         return s * _norm(x - y), y
 
+    def project_normal(self, x: npt.ArrayLike) -> tuple[Float, Float, Float]:
+        x = _as_points(x)
+        project = type(self).project
+        if not _native(self, ParametricCurve, "closest_point", "normal") or project not in (
+            ParametricCurve.project,
+            Boundary.project,
+        ):
+            return Boundary.project_normal(self, x)
+        if project is Boundary.project:  # the subclass's own sign
+            return self._sign_closest_normal(x)
+        t, y = self._project(x)
+        s = self._grid.sign_code(x)
+        m = s == 0
+        s[m] = self._exact_sign(x[m], t[m], y[m])
+        return s * _norm(x - y), y, self._outward(t)
+
+    def _closest_normal(self, x: Float) -> tuple[Float, Float]:
+        if not _native(self, ParametricCurve, "closest_point", "normal"):
+            return Boundary._closest_normal(self, x)
+        t, y = self._project(x)
+        return y, self._outward(t)
+
     def closest_point(self, x: npt.ArrayLike) -> Float:
         return self._project(_as_points(x))[1]
 
@@ -825,10 +970,26 @@ class ParametricCurve(Boundary):
         return np.array([p.min(axis=0) - h, p.max(axis=0) + h])
 
     def sample(self, n: int) -> Float:
+        return self.point(self._sample_parameters(n))
+
+    def _sample_parameters(self, n: int) -> Float:
+        """Parameters of ``n`` points about equally spaced in arc length, ``(n,)``."""
         t, p = self._samples[:2]
         s = np.concatenate([[0.0], np.cumsum(_chords(p))])
         u = np.arange(n) * (s[-1] / max(n, 1))
-        return self.point(np.mod(np.interp(u, s, np.append(t, self.period)), self.period))
+        return np.mod(np.interp(u, s, np.append(t, self.period)), self.period)
+
+    def _loops_normals(self, spacing: float) -> tuple[list[Float], list[Float]]:
+        if not _native(self, ParametricCurve, "sample", "_loops", "normal"):
+            return Boundary._loops_normals(self, spacing)
+        n = 1024  # as Boundary._loops; the normals from the parameters, not by projection
+        while True:
+            t = self._sample_parameters(n)
+            p = self.point(t)
+            longest = float(_chords(p).max())
+            if longest <= spacing:
+                return [p], [self._outward(t)]
+            n = int(np.ceil(n * longest / spacing * 1.1))
 
     def min_radius_of_curvature(self) -> float:
         t = np.arange(4 * self.n_samples, dtype=np.float64) * (self.period / (4 * self.n_samples))
@@ -1014,6 +1175,11 @@ class PolarCurve(ParametricCurve):
         u = np.column_stack([np.cos(t), np.sin(t)])
         return u, _rot90(u)
 
+    def _c012(self, t: Float) -> tuple[Float, Float, Float]:
+        u, v = self._frame(t)  # once for the three (the formulas of point, derivative, ...)
+        r, dr, d2r = (_call(f, t, t.shape)[:, None] for f in (self.r, self.dr, self.d2r))
+        return self.center + r * u, dr * u + r * v, (d2r - r) * u + 2 * dr * v
+
     def point(self, t: Float) -> Float:
         return self.center + _call(self.r, t, t.shape)[:, None] * self._frame(t)[0]
 
@@ -1157,13 +1323,25 @@ class RigidMotion(Boundary):
         phi, y = self.base.project(self._to_base(x))
         return phi, self._from_base(y)
 
+    def project_normal(self, x: npt.ArrayLike) -> tuple[Float, Float, Float]:
+        if not _native(self, RigidMotion, "project", "normal"):
+            return Boundary.project_normal(self, x)
+        phi, y, n = self.base.project_normal(self._to_base(x))
+        return phi, self._from_base(y), _rotate(n, *self._cs)
+
+    def _closest_normal(self, x: Float) -> tuple[Float, Float]:
+        if not _native(self, RigidMotion, "closest_point", "normal"):
+            return Boundary._closest_normal(self, x)
+        y, n = self.base._closest_normal(self._to_base(x))
+        return self._from_base(y), _rotate(n, *self._cs)
+
     def normal(self, y: npt.ArrayLike) -> Float:
         return _rotate(self.base.normal(self._to_base(y)), *self._cs)
 
     def tangent(self, y: npt.ArrayLike) -> Float:
         return _rotate(self.base.tangent(self._to_base(y)), *self._cs)
 
-    def near(self, x: npt.ArrayLike, distance: float) -> Bool:
+    def near(self, x: npt.ArrayLike, distance: float | npt.ArrayLike) -> Bool:
         return self.base.near(self._to_base(x), distance)
 
     def _lower_bound(self, x: Float) -> Float:
@@ -1186,6 +1364,10 @@ class RigidMotion(Boundary):
 
     def _loops(self, spacing: float) -> list[Float]:
         return [self._from_base(q) for q in self.base._loops(spacing)]
+
+    def _loops_normals(self, spacing: float) -> tuple[list[Float], list[Float]]:
+        loops, normals = self.base._loops_normals(spacing)
+        return [self._from_base(q) for q in loops], [_rotate(n, *self._cs) for n in normals]
 
 
 class Domain(Boundary):
@@ -1230,28 +1412,45 @@ class Domain(Boundary):
             s[m[b.sign(x[m]) < 0]] = 1.0
         return s
 
-    def _closest(self, x: Float) -> tuple[Int, Float, Float]:
-        """Closest component index ``(n,)``, closest point ``(n, 2)`` and distance ``(n,)``.
+    def _closest(self, x: Float, normals: bool = False) -> tuple[Int, Float, Float, Float | None]:
+        """Closest component index ``(n,)``, closest point ``(n, 2)``, distance ``(n,)`` and,
+        with ``normals``, the outward normals of Omega there ``(n, 2)`` (else None).
 
         Each point is projected onto the component with the smallest distance lower bound,
         then onto every other component whose lower bound beats the best distance so far.
         """
-        comps = [b for b, _ in self.components]
-        lb = np.array([b._lower_bound(x) for b in comps]).reshape(len(comps), len(x))
+        comps = self.components
+        if not len(x):
+            e = np.empty((0, 2))
+            return np.zeros(0, dtype=np.intp), e, np.zeros(0), e.copy() if normals else None
+        if len(comps) == 1:  # no lower bounds needed
+            b, body = comps[0]
+            if normals:
+                y, n = b._closest_normal(x)
+                return np.zeros(len(x), dtype=np.intp), y, _norm(x - y), -n if body else n
+            y = b.closest_point(x)
+            return np.zeros(len(x), dtype=np.intp), y, _norm(x - y), None
+        lb = np.array([b._lower_bound(x) for b, _ in comps]).reshape(len(comps), len(x))
         first = lb.argmin(axis=0) if len(x) else np.zeros(0, dtype=np.intp)
         idx, y, d = first.copy(), np.empty((len(x), 2)), np.full(len(x), np.inf)
+        out: Float | None = np.empty((len(x), 2)) if normals else None
         for rnd in range(2):
-            for k, b in enumerate(comps):
+            for k, (b, body) in enumerate(comps):
                 m = np.flatnonzero((first == k) if rnd == 0 else (lb[k] < d) & (first != k))
                 if m.size:
-                    yk = b.closest_point(x[m])
+                    if normals:
+                        yk, nk = b._closest_normal(x[m])
+                    else:
+                        yk = b.closest_point(x[m])
                     dk = _norm(x[m] - yk)
                     better = dk < d[m]
                     m = m[better]
                     y[m], d[m] = yk[better], dk[better]
+                    if out is not None:
+                        out[m] = -nk[better] if body else nk[better]
                     if rnd:
                         idx[m] = k
-        return idx, y, d
+        return idx, y, d, out
 
     def component_index(self, y: npt.ArrayLike) -> Int:
         """Index ``(n,)`` into :attr:`components` of the component closest to each point."""
@@ -1262,20 +1461,24 @@ class Domain(Boundary):
 
     def project(self, x: npt.ArrayLike) -> tuple[Float, Float]:
         x = _as_points(x)
-        _, y, d = self._closest(x)
+        _, y, d, _ = self._closest(x)
         return self.sign(x) * d, y
 
-    def normal(self, y: npt.ArrayLike) -> Float:
-        y = _as_points(y)
-        idx = self.component_index(y)
-        out = np.empty((len(y), 2))
-        for k, (b, body) in enumerate(self.components):
-            m = idx == k
-            if m.any():
-                out[m] = -b.normal(y[m]) if body else b.normal(y[m])
-        return out
+    def project_normal(self, x: npt.ArrayLike) -> tuple[Float, Float, Float]:
+        x = _as_points(x)
+        if not _native(self, Domain, "project", "closest_point", "normal"):
+            return Boundary.project_normal(self, x)
+        _, y, d, n = self._closest(x, normals=True)
+        return self.sign(x) * d, y, n  # type: ignore[return-value]
 
-    def near(self, x: npt.ArrayLike, distance: float) -> Bool:
+    def _closest_normal(self, x: Float) -> tuple[Float, Float]:
+        _, y, _, n = self._closest(x, normals=True)
+        return y, n  # type: ignore[return-value]
+
+    def normal(self, y: npt.ArrayLike) -> Float:
+        return self._closest(_as_points(y), normals=True)[3]  # type: ignore[return-value]
+
+    def near(self, x: npt.ArrayLike, distance: float | npt.ArrayLike) -> Bool:
         x = _as_points(x)
         out = np.zeros(len(x), dtype=bool)
         for b, _ in self.components:
@@ -1304,3 +1507,12 @@ class Domain(Boundary):
     def _loops(self, spacing: float) -> list[Float]:
         """The loops of every component (container first), each as that component gives it."""
         return [q for b, _ in self.components for q in b._loops(spacing)]
+
+    def _loops_normals(self, spacing: float) -> tuple[list[Float], list[Float]]:
+        loops: list[Float] = []
+        normals: list[Float] = []
+        for b, body in self.components:
+            q, n = b._loops_normals(spacing)
+            loops += q
+            normals += [-v if body else v for v in n]  # out of Omega: into the bodies
+        return loops, normals

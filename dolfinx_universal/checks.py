@@ -22,6 +22,7 @@ if TYPE_CHECKING:
     from .sizing import CurveSamples
 
 __all__ = [
+    "CellLocator",
     "classification_problems",
     "containment_problems",
     "conforming_problems",
@@ -161,8 +162,80 @@ def classification_problems(
     return problems, theta_max
 
 
+class CellLocator:
+    """Which triangles contain given points: a uniform grid of bins over the triangles'
+    bounding boxes, built once for a fixed mesh (process-local, owned and ghost cells).
+
+    Parameters
+    ----------
+    x
+        Vertex coordinates ``(num_vertices, 2)``.
+    cells
+        Triangles as vertex indices ``(num_cells, 3)``.
+    """
+
+    def __init__(self, x: Float, cells: Int) -> None:
+        self.x, self.cells = x, cells
+        corners = x[cells]  # (m, 3, 2)
+        lo, hi = corners.min(axis=1), corners.max(axis=1)
+        m = len(cells)
+        self.origin = lo.min(axis=0) if m else np.zeros(2)
+        extent = (hi - lo).max(axis=1) if m else np.ones(1)
+        # bins about the size of a typical cell: each cell spans a few bins
+        self.g = g = float(max(np.median(extent), 1e-300)) if m else 1.0
+        i0 = np.floor((lo - self.origin) / g).astype(np.int64)
+        i1 = np.floor((hi - self.origin) / g).astype(np.int64)
+        self.shape = (i1.max(axis=0) + 1) if m else np.ones(2, dtype=np.int64)
+        nx, ny = i1[:, 0] - i0[:, 0] + 1, i1[:, 1] - i0[:, 1] + 1
+        count = nx * ny
+        cell = np.repeat(np.arange(m), count)
+        k = np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)
+        bx = i0[cell, 0] + k % nx[cell]
+        by = i0[cell, 1] + k // nx[cell]
+        key = bx * self.shape[1] + by
+        order = np.argsort(key, kind="stable")
+        self.bin_cells = cell[order].astype(np.int32)
+        nbins = int(self.shape[0] * self.shape[1])
+        self.offsets = np.concatenate([[0], np.cumsum(np.bincount(key, minlength=nbins))])
+
+    def contains(self, points: Float, allowed: Bool | None = None, tol: float = 1e-12) -> Bool:
+        """Whether each point lies in a triangle (among the ``allowed`` ones), ``(n,)``.
+
+        A point counts as inside when its barycentric coordinates are all at least
+        ``-tol`` (relative: on an edge up to rounding is inside).
+        """
+        n = len(points)
+        ij = np.floor((points - self.origin) / self.g).astype(np.int64)
+        ok = (ij >= 0).all(axis=1) & (ij < self.shape).all(axis=1)
+        key = np.where(ok, ij[:, 0] * self.shape[1] + ij[:, 1], 0)
+        start, stop = self.offsets[key], self.offsets[key + 1]
+        num = np.where(ok, stop - start, 0)
+        pt = np.repeat(np.arange(n), num)
+        c = self.bin_cells[
+            np.repeat(start, num) + np.arange(int(num.sum())) - np.repeat(np.cumsum(num) - num, num)
+        ]
+        if allowed is not None:
+            keep = allowed[c]
+            pt, c = pt[keep], c[keep]
+        a, b, d = (self.x[self.cells[c, i]] for i in range(3))
+        p = points[pt]
+        det = (b[:, 0] - a[:, 0]) * (d[:, 1] - a[:, 1]) - (d[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+        l1 = (p[:, 0] - a[:, 0]) * (d[:, 1] - a[:, 1]) - (d[:, 0] - a[:, 0]) * (p[:, 1] - a[:, 1])
+        l2 = (b[:, 0] - a[:, 0]) * (p[:, 1] - a[:, 1]) - (p[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            l1, l2 = l1 / det, l2 / det
+        inside = (l1 >= -tol) & (l2 >= -tol) & (1.0 - l1 - l2 >= -tol)
+        found = np.zeros(n, dtype=bool)
+        found[pt[inside]] = True
+        return found
+
+
 def containment_problems(
-    background: dmesh.Mesh, boundary: Boundary, cells: npt.NDArray[np.int32], comm: MPI.Comm
+    background: dmesh.Mesh,
+    boundary: Boundary,
+    cells: npt.NDArray[np.int32],
+    comm: MPI.Comm,
+    locator: CellLocator | None = None,
 ) -> list[Problem]:
     """Points of Gamma that lie in none of ``cells`` of the background (collective).
 
@@ -176,18 +249,27 @@ def containment_problems(
         Background cells to search (those near Gamma) ``(m,)``.
     comm
         Communicator of the mesh.
+    locator
+        A :class:`CellLocator` of all local background cells, built once and reused (the
+        search is restricted to ``cells``); without it, a bounding-box tree of ``cells``
+        is built for this call.
 
     Returns
     -------
     The problem on rank 0 when samples of Gamma are in no cell of any rank, else empty.
     """
     pts = collective_call(comm, "sampling the boundary", boundary.sample, 512)
-    pts3 = np.zeros((len(pts), 3))
-    pts3[:, :2] = pts
-    tree = dgeometry.bb_tree(background, 2, entities=cells.astype(np.int32))
-    cand = dgeometry.compute_collisions_points(tree, pts3)
-    hits = dgeometry.compute_colliding_cells(background, cand, pts3)
-    found = (np.diff(hits.offsets) > 0).astype(np.int32)
+    if locator is not None:
+        allowed = np.zeros(len(locator.cells), dtype=bool)
+        allowed[cells] = True
+        found = locator.contains(np.asarray(pts, dtype=np.float64), allowed).astype(np.int32)
+    else:
+        pts3 = np.zeros((len(pts), 3))
+        pts3[:, :2] = pts
+        tree = dgeometry.bb_tree(background, 2, entities=cells.astype(np.int32))
+        cand = dgeometry.compute_collisions_points(tree, pts3)
+        hits = dgeometry.compute_colliding_cells(background, cand, pts3)
+        found = (np.diff(hits.offsets) > 0).astype(np.int32)
     found = comm.allreduce(found, op=MPI.SUM) if comm.size > 1 else found
     missing = pts[found == 0]
     if len(missing) and comm.rank == 0:

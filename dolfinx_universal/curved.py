@@ -32,6 +32,7 @@ __all__ = [
 ]
 
 Float = npt.NDArray[np.float64]
+Bool = npt.NDArray[np.bool_]
 
 MAPS = ("I", "I~", "G", "G~")
 """Map names. ``"I"``/``"G"`` interpolate the exactly conforming blend ``G_h``; ``"I~"``/``"G~"``
@@ -57,6 +58,80 @@ def reference_nodes(degree: int) -> Float:
     return np.column_stack([1.0 - p.sum(axis=1), p])
 
 
+def _edge_parameters(lam: Float) -> tuple[Float, Bool, Float, Bool]:
+    """Where the blend projects: ``pi(s a + (1 - s) b)`` with ``s = s1`` (first term) and
+    ``s = s2`` (second term) at barycentric points ``lam (..., p, 3)``, and whether it must.
+
+    On the positive edge (``l_w = 0``) both terms project the same point: ``s2 = l_u``
+    there (``1 - l_v`` up to rounding), so that it is projected once. Vertices and points
+    with zero weight are not projected.
+    """
+    lu, lv, lw = lam[..., 0], lam[..., 1], lam[..., 2]
+    at_u, at_v = (1.0 - lu) <= _VERTEX, (1.0 - lv) <= _VERTEX
+    return lu, (lv > 0) & ~at_u, np.where(lw == 0, lu, 1.0 - lv), (lu > 0) & ~at_v
+
+
+_VERTEX = 1e-14
+"""Barycentric coordinates within this of 1 are the vertex itself (its exact image)."""
+
+
+def _combine(lam: Float, pu: Float, pv: Float, mw: Float, p1: Float, p2: Float) -> Float:
+    """The blend from the projected points ``p1, p2 (m, p, 2)`` (see :func:`transfinite_map`)."""
+    lu, lv, lw = lam[..., 0:1], lam[..., 1:2], lam[..., 2:3]
+    pu, pv, mw = pu[:, None, :], pv[:, None, :], mw[:, None, :]
+    at_u, at_v = (1.0 - lu) <= _VERTEX, (1.0 - lv) <= _VERTEX
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1 = (lv * p1 + lu * lw * pu) / (2.0 * (1.0 - lu))
+        t2 = (lu * p2 + lv * lw * pv) / (2.0 * (1.0 - lv))
+    g = np.where(at_u, 0.0, t1) + np.where(at_v, 0.0, t2) + lw * mw
+    g = np.where(at_u, pu, g)
+    return np.where(at_v, pv, g)
+
+
+def _blend(
+    patterns: Float,
+    which: npt.NDArray[np.intp],
+    edge_u: Float,
+    edge_v: Float,
+    pi_u: Float,
+    pi_v: Float,
+    m_w: Float,
+    closest_point: Callable[[Float], Float],
+) -> Float:
+    """:func:`transfinite_map` for cells whose barycentric points are one of a few
+    ``patterns (r, p, 3)``: cell ``c`` has ``patterns[which[c]]``.
+
+    Every cell projects the points ``s a + (1 - s) b`` of the edge parameters ``s`` in
+    ``(0, 1)`` that the patterns need (one per cell at degree 2: the midpoint of the positive
+    edge), in one call of ``closest_point``; ``s = 1`` and ``s = 0`` (the end points) take
+    ``pi_u`` and ``pi_v``, which are their projections.
+    """
+    m = len(edge_u)
+    s1, need1, s2, need2 = _edge_parameters(patterns)
+    values = np.concatenate([s1[need1], s2[need2]])
+    inner = np.unique(values[(values > 0) & (values < 1)])
+    ns = len(inner)
+    if ns:
+        q = (
+            inner[None, :, None] * edge_u[:, None, :]
+            + (1.0 - inner)[None, :, None] * edge_v[:, None, :]
+        )
+        proj = np.asarray(closest_point(q.reshape(-1, 2)), dtype=np.float64).reshape(m, ns, 2)
+    else:
+        proj = np.zeros((m, 0, 2))
+    ext = np.concatenate([proj, pi_u[:, None, :], pi_v[:, None, :]], axis=1)  # s: inner, 1, 0
+
+    def slot(s: Float, need: Bool) -> npt.NDArray[np.intp]:
+        j = np.searchsorted(inner, s).clip(0, max(ns - 1, 0))
+        hit = (ns > 0) & (inner[j] == s) if ns else np.zeros(s.shape, dtype=bool)
+        return np.where(need & hit, j, np.where(need & (s <= 0), ns + 1, ns))
+
+    rows = np.arange(m)[:, None]
+    p1 = ext[rows, slot(s1, need1)[which]]
+    p2 = ext[rows, slot(s2, need2)[which]]
+    return _combine(patterns[which], pi_u, pi_v, m_w, p1, p2)
+
+
 def transfinite_map(
     lam: Float,
     edge_u: Float,
@@ -75,7 +150,9 @@ def transfinite_map(
              + [l_u pi((1-l_v) a + l_v b) + l_v l_w pi_v] / (2 (1 - l_v)) + l_w m_w
 
     with ``(a, b)`` the edge end points: the background vertices ``(u, v)`` for ``G_h``, their
-    images ``(pi(u), pi(v))`` for ``G~_h``. Vertex limits are exact (no 0/0).
+    images ``(pi(u), pi(v))`` for ``G~_h``. Vertex limits are exact (no 0/0). Each distinct
+    point of the edge is projected once (one call of ``closest_point``); the end points
+    ``a, b`` are not projected: ``pi_u = pi(a)`` and ``pi_v = pi(b)`` are their projections.
 
     Parameters
     ----------
@@ -84,7 +161,8 @@ def transfinite_map(
     edge_u, edge_v
         End points of the straight edge to project from, ``(m, 2)``.
     pi_u, pi_v, m_w
-        Images of the vertices ``u, v`` (on Gamma) and ``w``, ``(m, 2)``.
+        Images of the vertices ``u, v`` (on Gamma: the projections of ``edge_u, edge_v``)
+        and ``w``, ``(m, 2)``.
     closest_point
         The projection onto Gamma, ``(n, 2) -> (n, 2)``.
 
@@ -93,29 +171,21 @@ def transfinite_map(
     Images of the points, ``(m, p, 2)``.
     """
     m = len(edge_u)
+    if np.ndim(lam) == 2:
+        return _blend(
+            np.asarray(lam, dtype=np.float64)[None], np.zeros(m, dtype=np.intp),
+            edge_u, edge_v, pi_u, pi_v, m_w, closest_point,
+        )  # fmt: skip
     lam = np.broadcast_to(lam, (m,) + np.shape(lam)[-2:])
-    lu, lv, lw = lam[..., 0:1], lam[..., 1:2], lam[..., 2:3]
+    s1, need1, s2, need2 = _edge_parameters(lam)
     a, b = edge_u[:, None, :], edge_v[:, None, :]
-    pu, pv, mw = pi_u[:, None, :], pi_v[:, None, :], m_w[:, None, :]
-    eps = 1e-14
-    at_u, at_v = (1.0 - lu) <= eps, (1.0 - lv) <= eps
-    # Points on the edge that need projecting: skip vertices and points with zero weight.
-    q1 = lu * a + (1.0 - lu) * b
-    q2 = (1.0 - lv) * a + lv * b
-    need1 = (lv > 0) & ~at_u
-    need2 = (lu > 0) & ~at_v
-    p1 = np.zeros_like(q1)
-    p2 = np.zeros_like(q2)
-    if need1.any():
-        p1[need1[..., 0]] = closest_point(q1[need1[..., 0]])
-    if need2.any():
-        p2[need2[..., 0]] = closest_point(q2[need2[..., 0]])
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t1 = (lv * p1 + lu * lw * pu) / (2.0 * (1.0 - lu))
-        t2 = (lu * p2 + lv * lw * pv) / (2.0 * (1.0 - lv))
-    g = np.where(at_u, 0.0, t1) + np.where(at_v, 0.0, t2) + lw * mw
-    g = np.where(at_u, pu, g)
-    return np.where(at_v, pv, g)
+    q1 = s1[..., None] * a + (1.0 - s1[..., None]) * b
+    q2 = s2[..., None] * a + (1.0 - s2[..., None]) * b
+    pts = np.concatenate([q1[need1], q2[need2]])
+    proj = np.asarray(closest_point(pts), dtype=np.float64) if len(pts) else pts
+    p1, p2 = np.zeros_like(q1), np.zeros_like(q2)
+    p1[need1], p2[need2] = proj[: int(need1.sum())], proj[int(need1.sum()) :]
+    return _combine(lam, pi_u, pi_v, m_w, p1, p2)
 
 
 def map_nodes(
@@ -151,7 +221,9 @@ def map_nodes(
     Node coordinates ``(m, ndofs, 2)`` in DOLFINx's node order.
     """
     lam = reference_nodes(degree)
-    nodes = np.einsum("pi,cid->cpd", lam, y[cells])  # affine images
+    # Affine images; einsum sums in vertex order: a shared edge node gets the same value
+    # from both of its cells (a matmul may not: fused multiply-adds).
+    nodes = np.einsum("pi,cid->cpd", lam, y[cells])
     pc = np.flatnonzero(positively_cut(sign, cells))
     if len(pc) == 0:
         return nodes
@@ -159,13 +231,17 @@ def map_nodes(
     order = np.column_stack([(k + 1) % 3, (k + 2) % 3, k])  # (u, v, w), orientation kept
     rows = np.arange(len(pc))[:, None]
     vid = cells[pc][rows, order]
-    lam_uvw = lam[:, order].transpose(1, 0, 2)  # (m, p, 3)
+    patterns = np.stack([lam[:, [(j + 1) % 3, (j + 2) % 3, j]] for j in range(3)])  # (3, p, 3)
     pu, pv, mw = y[vid[:, 0]], y[vid[:, 1]], y[vid[:, 2]]
     if kind == "G":
         a, b = x_background[vid[:, 0]], x_background[vid[:, 1]]
     else:
         a, b = pu, pv
-    nodes[pc] = transfinite_map(lam_uvw, a, b, pu, pv, mw, closest_point)
+    curved = _blend(patterns, k, a, b, pu, pv, mw, closest_point)
+    # On the two straight edges the blend is affine: keep the affine values there, bitwise
+    # those of the neighbouring cells (the same result whichever cell writes a shared node).
+    straight = ((patterns[..., 0] == 0) | (patterns[..., 1] == 0))[k]
+    nodes[pc] = np.where(straight[..., None], nodes[pc], curved)
     return nodes
 
 
@@ -266,16 +342,25 @@ def curved_mesh(
         raise ValueError(f"geometry degree must be an integer >= 1, got {degree}")
     kind = "G" if map in ("I", "G") else "G~"
     ce = fem.coordinate_element(dmesh.CellType.triangle, degree, basix.LagrangeVariant.gll_warped)
+    # The interpolated geometry is the affine image of every cell: only the positively cut
+    # cells change (their straight edges stay affine, so shared nodes agree).
     msh = fem.interpolate_geometry(cm.mesh, ce)
-    nodes = collective_call(msh.comm, "the curved map", _cell_nodes, cm, degree, kind)
+    cells = cm.cells
+    pc = np.flatnonzero(positively_cut(cm.sign, cells))
     dofmap = msh.geometry.dofmaps[0]
-    msh.geometry.x[dofmap.ravel(), :2] = nodes.reshape(-1, 2)
+    # Vertex positions of the cut cells only (the nodes of a node shared by a cut cell and
+    # an affine one agree up to rounding: the curved map is affine on the other edges).
+    corners = cm.mesh.geometry.x[cm.mesh.geometry.dofmaps[0][pc], :2]  # (cut cells, 3, 2)
+    y = np.zeros((len(cm.sign), 2))
+    y[cells[pc]] = corners
+    nodes = collective_call(
+        msh.comm, "the curved map", map_nodes, cells[pc], y, cm.background_x, cm.sign,
+        degree, kind, cm.boundary.closest_point,
+    )  # fmt: skip
+    msh.geometry.x[dofmap[pc].ravel(), :2] = nodes.reshape(-1, 2)
 
-    pc = np.flatnonzero(cm.positively_cut)
     ratio = (
-        jacobian_ratio(nodes[pc], degree, threshold=min_ratio)
-        if degree > 1 and len(pc)
-        else np.ones(0)
+        jacobian_ratio(nodes, degree, threshold=min_ratio) if degree > 1 and len(pc) else np.ones(0)
     )
     bad = ratio <= min_ratio
     problems = []
@@ -285,7 +370,7 @@ def curved_mesh(
                 "{count} curved triangles are not proven valid (det J / det J_straight >= "
                 f"{min_ratio:g} fails) near " + "{where}: the background is too coarse for the "
                 "boundary's curvature there; refine near those points",
-                nodes[pc[bad]].mean(axis=1),
+                nodes[bad].mean(axis=1),
                 int(bad.sum()),
             )
         )

@@ -321,15 +321,20 @@ class MovingDomain:
 
     def _check_coverage(self, boundary: Boundary) -> None:
         """Raise if ``boundary`` needs a finer background than :meth:`from_motion` built."""
-        from .sizing import feature_size, target_sizes
+        from .sizing import CurveSamples, feature_size, target_sizes
 
         field, box, degree, factor = self._coverage  # type: ignore[misc]
 
-        def needs() -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+        def needs() -> tuple[CurveSamples, npt.NDArray[np.float64]]:
             samples, feature = feature_size(boundary)
-            return samples.points, target_sizes(feature, float(field.h_max), degree, factor)
+            return samples, target_sizes(feature, float(field.h_max), degree, factor)
 
-        pts, target = collective_call(self.comm, "sizing the boundary", needs)
+        samples, target = collective_call(self.comm, "sizing the boundary", needs)
+        pts = samples.points
+        # One sampling for both: the feature samples serve the Gamma_h checks of this step
+        # when they are fine enough (UniversalMesh._curve_samples reuses samples spaced at
+        # most as it asks).
+        self.universal._samples = (boundary, samples.spacing, samples)
         outside = ~((pts > box[0]).all(axis=1) & (pts < box[1]).all(axis=1))
         coarse = target < field(pts) / COVERAGE_TOLERANCE
         bad = outside | coarse
@@ -347,13 +352,17 @@ class MovingDomain:
             )
 
     def _quality(self, sm, near: npt.NDArray[np.bool_]) -> dict[str, float | int]:
-        """Quality of the active triangles: computed near Gamma, background values elsewhere
-        (the triangles away from Gamma are unmoved and have all vertices inside)."""
+        """Quality of the active triangles: computed where they moved or have a vertex
+        outside, background values elsewhere (unmoved triangles with all vertices inside:
+        those away from Gamma and some near it)."""
         nco, c2v = self._nco, self._c2v
         kept = sm.kept[:nco]
         near_kept = np.flatnonzero(kept & near[:nco])
-        rep = cell_quality(self.comm, sm.y, self.universal._x, c2v[near_kept], sm.sign, sm.moved)
+        cv = c2v[near_kept]
+        plain = ~sm.moved[cv].any(axis=1) & (sm.sign[cv] < 0).all(axis=1)
+        rep = cell_quality(self.comm, sm.y, self.universal._x, cv[~plain], sm.sign, sm.moved)
         far = kept & ~near[:nco]
+        far[near_kept[plain]] = True
         b = self._background_quality
         red = self.comm.allreduce
         n_far = red(int(np.count_nonzero(far)))

@@ -44,7 +44,8 @@ def classify_near(
 
     Gamma lies in its bounding box, so every vertex outside the box (enlarged by the band
     width) has the sign of the far field: only the vertices in the box are tested, and only
-    those within ``R_r`` of Gamma are in the band (to be projected).
+    those within their own ``R_r`` of Gamma are in the band (to be projected; a cheap
+    superset, :meth:`~dolfinx_universal.boundaries.Boundary.near`).
 
     Parameters
     ----------
@@ -66,21 +67,20 @@ def classify_near(
     """
     nv = len(x)
     rmax = float(R_r.max()) if nv else 0.0
-    box = np.asarray(collective_call(comm, "the bounding box", boundary.bounding_box), dtype=float)
     pad = rmax + 2.0 * (float(h.max()) if nv else 0.0)
-    lo, hi = box[0] - pad, box[1] + pad
-    far = np.asarray(
-        collective_call(comm, "the sign test", boundary.sign, (hi + pad)[None]), dtype=float
-    )[0]
-    cand = np.flatnonzero(
-        (x[:, 0] >= lo[0]) & (x[:, 0] <= hi[0]) & (x[:, 1] >= lo[1]) & (x[:, 1] <= hi[1])
-    )
-    s = np.full(nv, far)
-    s[cand] = collective_call(comm, "the sign test", boundary.sign, x[cand])
-    near_flag = np.asarray(
-        collective_call(comm, "the band test", boundary.near, x[cand], rmax), dtype=bool
-    )
-    return s, cand[near_flag]
+
+    def local() -> tuple[Float, Int]:  # the boundary's calls, checked on all ranks at once
+        box = np.asarray(boundary.bounding_box(), dtype=float)
+        lo, hi = box[0] - pad, box[1] + pad
+        far = np.asarray(boundary.sign((hi + pad)[None]), dtype=float)[0]
+        cand = np.flatnonzero(
+            (x[:, 0] >= lo[0]) & (x[:, 0] <= hi[0]) & (x[:, 1] >= lo[1]) & (x[:, 1] <= hi[1])
+        )
+        s = np.full(nv, far)
+        s[cand] = boundary.sign(x[cand])
+        return s, cand[np.asarray(boundary.near(x[cand], R_r[cand]), dtype=bool)]
+
+    return collective_call(comm, "the sign and band tests", local)
 
 
 def project_band(
@@ -124,7 +124,7 @@ def project_band(
     closest = np.full((nv, 2), np.nan)
     normal = np.full((nv, 2), np.nan)
     xb = x[band]
-    phi_b, y_b = collective_call(comm, "closest-point projection", boundary.project, xb)
+    phi_b, y_b, n_b = collective_call(comm, "closest-point projection", boundary.project_normal, xb)
     bad = ~(np.isfinite(phi_b) & np.isfinite(y_b).all(axis=1))
     raise_collective(
         comm,
@@ -136,7 +136,7 @@ def project_band(
     phi[band], closest[band] = phi_b, y_b
     on_gamma = band[(phi_b <= 0) & (phi_b > -1e-10 * h[band])]
     s[on_gamma], phi[on_gamma] = 1.0, 0.0
-    normal[band] = collective_call(comm, "the normal", boundary.normal, y_b)
+    normal[band] = n_b
     return s, phi, closest, normal
 
 
@@ -208,8 +208,11 @@ def perturb(
     xp, phi, s = x.copy(), phi.copy(), s.copy()
     relocated = np.zeros(nv, dtype=bool)
     while eta > 0:
+        cand = perturbation_candidates(xp, phi, s, near, eta)
+        if not comm.allreduce(bool((~relocated[cand]).any()), op=MPI.LOR):
+            break  # nothing new on any rank (no reduction of flags needed)
         flag = np.zeros(nv)
-        flag[perturbation_candidates(xp, phi, s, near, eta)] = 1.0
+        flag[cand] = 1.0
         new = (vertex_reduce(imv, flag, "sum") > 0) & ~relocated
         if comm.allreduce(int(new[: imv.size_local].sum())) == 0:
             break
@@ -252,12 +255,6 @@ class PositiveEdges:
     in_kept: Bool
 
 
-def _incidence(imv: IndexMap, vertices: Int, n: int) -> Float:
-    """Global number of times each local vertex appears in ``vertices`` (over all ranks)."""
-    count = np.bincount(vertices.ravel(), minlength=n).astype(np.float64)
-    return vertex_reduce(imv, count, "sum")
-
-
 def gamma_h(imv: IndexMap, s: Float, c2v: Int, near_cells: Int) -> PositiveEdges:
     """Positive edges, Gamma_h and the kept cells from the final signs (collective).
 
@@ -283,10 +280,17 @@ def gamma_h(imv: IndexMap, s: Float, c2v: Int, near_cells: Int) -> PositiveEdges
     near = c2v[near_cells]
     pc_owned = near_cells[positively_cut(s, near)]
     u, v, w = positive_edges(s, c2v[pc_owned])
-    count = _incidence(imv, np.concatenate([u, v]), nv)
     kept = kept_cells(s, c2v)
     near_kept = near_cells[kept[near_cells]]
-    in_kept = _incidence(imv, c2v[near_kept], nv) > 0
+    # both incidences in one reduction over the ranks
+    local = np.column_stack(
+        [
+            np.bincount(np.concatenate([u, v]), minlength=nv),
+            np.bincount(c2v[near_kept].ravel(), minlength=nv),
+        ]
+    ).astype(np.float64)
+    both = vertex_reduce(imv, local, "sum")
+    count, in_kept = both[:, 0].copy(), both[:, 1] > 0
     return PositiveEdges(pc_owned, u, v, w, count, count > 0, kept, near_kept, in_kept)
 
 

@@ -107,7 +107,8 @@ def _next(offsets: Int) -> tuple[Int, Int]:
 def curve_samples(boundary: Boundary, spacing: float) -> CurveSamples:
     """Ordered samples of every closed curve of ``boundary`` at most ``spacing`` apart.
 
-    The loops are ``boundary._loops(spacing)``; normals are ``boundary.normal(points)``.
+    The loops are ``boundary._loops(spacing)``; normals are ``boundary.normal(points)``
+    (from the curve parameters where the boundary knows them: no projection).
     A curve encloses the domain when a point just inside Omega next to it (``p - eps n``,
     ``eps -> 0``) lies inside the curve's polygon: for a simple closed curve this holds when
     the inward direction ``-n`` is on the interior side of the polygon, i.e. on the left of
@@ -133,8 +134,9 @@ def curve_samples(boundary: Boundary, spacing: float) -> CurveSamples:
         (overlapping components, a curve crossing itself).
     """
     spacing = _positive(spacing, "spacing")
-    loops = [np.asarray(q, dtype=np.float64)[:, :2] for q in boundary._loops(spacing)]
-    loops = [q for q in loops if len(q) >= 3]
+    raw, raw_normals = boundary._loops_normals(spacing)
+    keep = [k for k, q in enumerate(raw) if len(q) >= 3]
+    loops = [np.asarray(raw[k], dtype=np.float64)[:, :2] for k in keep]
     if not loops:
         raise ValueError(f"{type(boundary).__name__} has no closed curve to sample")
     lengths = np.array([len(q) for q in loops], dtype=np.intp)
@@ -143,7 +145,7 @@ def curve_samples(boundary: Boundary, spacing: float) -> CurveSamples:
     pts = np.ascontiguousarray(np.concatenate(loops))
     if not np.isfinite(pts).all():
         raise ValueError("the samples of the boundary are not finite")
-    normals = np.asarray(boundary.normal(pts), dtype=np.float64).reshape(-1, 2)
+    normals = np.concatenate([np.asarray(raw_normals[k], dtype=np.float64) for k in keep])
     labels = np.repeat(np.arange(ncurves, dtype=np.intp), lengths)
     prev, nxt = _next(offsets)
     # Orientation of each loop (shoelace about its mean, for accuracy) and the side of -n.

@@ -86,6 +86,9 @@ def raise_collective(
     local = [
         p if isinstance(p, Problem) else Problem(_literal(p), np.zeros((0, 2)), 0) for p in problems
     ]
+    # The common case, no problem anywhere, costs one integer reduction, not a gather.
+    if comm.size > 1 and comm.allreduce(len(local), op=MPI.MAX) == 0:
+        return
     gathered = comm.allgather(
         [
             (p.message, np.asarray(p.points, float).reshape(-1, 2), p.count, p.refinable)
@@ -131,32 +134,65 @@ def collective_call(comm: MPI.Comm, what: str, fn: Callable[..., T], *args: Any)
     return result  # type: ignore[return-value]
 
 
+_VECTORS: dict[tuple[int, int], tuple[Any, Any, Any]] = {}
+_MAX_VECTORS = 16
+
+
+def _ghosted_vector(index_map, bs: int) -> tuple[Any, Any]:
+    """A ghosted vector (and its PETSc view) on ``index_map``, reused between calls.
+
+    Creating the PETSc vector and its scatter costs milliseconds, more than a reduction
+    near Gamma; the last few are kept (with their index maps, so the keys stay valid).
+    """
+    key = (id(index_map), bs)
+    entry = _VECTORS.get(key)
+    if entry is None or entry[0] is not index_map:
+        vec = la.vector(index_map, bs, dtype=np.float64)
+        entry = (index_map, vec, vec.petsc_vec)
+        if len(_VECTORS) >= _MAX_VECTORS:
+            _VECTORS.pop(next(iter(_VECTORS)))
+        _VECTORS[key] = entry
+    return entry[1], entry[2]
+
+
 def vertex_reduce(index_map, values: npt.ArrayLike, op: str = "sum") -> npt.NDArray[np.float64]:
     """Combine per-vertex contributions of all ranks, owned and ghost entries alike.
 
     Parameters
     ----------
     index_map
-        Vertex index map of the mesh (``topology.index_map(0)``).
+        Vertex index map of the mesh (``topology.index_map(0)``), or any index map whose
+        local indices number the rows of ``values``.
     values
-        Local contributions, ``(size_local + num_ghosts,)``.
+        Local contributions, ``(size_local + num_ghosts,)`` or, a block of values per
+        vertex, ``(size_local + num_ghosts, bs)``.
     op
-        ``"sum"`` or ``"max"``.
+        ``"sum"``, ``"max"`` or ``"min"``.
 
     Returns
     -------
-    The reduced values on owned and ghost vertices, ``(size_local + num_ghosts,)``.
+    The reduced values on owned and ghost vertices, shaped as ``values``.
     """
+    if op not in ("sum", "max", "min"):
+        raise ValueError(f"op must be 'sum', 'max' or 'min', got {op!r}")
     values = np.asarray(values, dtype=np.float64)
+    if values.ndim not in (1, 2) or len(values) != index_map.size_local + index_map.num_ghosts:
+        raise ValueError(
+            f"values must have one row per local vertex ({index_map.size_local} owned + "
+            f"{index_map.num_ghosts} ghosts), got shape {values.shape}"
+        )
     if index_map.comm.size == 1:
         return values.copy()
     from petsc4py import PETSc
 
-    vec = la.vector(index_map, 1, dtype=np.float64)
-    vec.array[:] = values
-    pv = vec.petsc_vec
-    mode = {"sum": PETSc.InsertMode.ADD_VALUES, "max": PETSc.InsertMode.MAX_VALUES}[op]
+    bs = 1 if values.ndim == 1 else values.shape[1]
+    if bs == 0:
+        return values.copy()
+    sign = -1.0 if op == "min" else 1.0  # min(a, b) = -max(-a, -b)
+    vec, pv = _ghosted_vector(index_map, bs)
+    vec.array[:] = sign * values.ravel()
+    mode = PETSc.InsertMode.ADD_VALUES if op == "sum" else PETSc.InsertMode.MAX_VALUES
     pv.ghostUpdate(addv=mode, mode=PETSc.ScatterMode.REVERSE)
     pv.ghostUpdate(addv=PETSc.InsertMode.INSERT_VALUES, mode=PETSc.ScatterMode.FORWARD)
-    out = vec.array.copy()
+    out = sign * vec.array.reshape(values.shape)
     return out

@@ -55,11 +55,15 @@ def test_circle_invariants(eta):
 
 
 def test_quality_bounds_trend():
-    """The bounds of Rangarajan & Lew (2014): equilateral background, R_r = 3h, alpha = 3/4."""
+    """The bounds of Rangarajan & Lew (2014): equilateral background, R_r = 3h, alpha = 3/4.
+
+    They bound the images of M_h, so the relaxation (which trades the Q's for angles) is off.
+    """
     for n in (24, 48):
         bg = du.equilateral_mesh(comm, [[-1.2, -1.2], [1.2, 1.2]], 1.0 / n)
         for eta in (0.0, 0.2):
-            rep = du.quality_report(du.conform(bg, du.Circle((0, 0), 1.0), eta=eta))
+            cm = du.conform(bg, du.Circle((0, 0), 1.0), eta=eta, relax=False)
+            rep = du.quality_report(cm)
             assert rep["Q3_max"] <= 4 / 3 + 1e-12
             assert rep["Q2_max"] <= 2 * np.sqrt(13) / 3
             assert rep["Q1_max"] <= np.sqrt(13)
@@ -95,10 +99,15 @@ def test_facet_tags_and_maps():
 
 
 def _sorted_points(msh) -> np.ndarray:
-    """Owned geometry nodes of ``msh``, gathered and sorted (rank-independent)."""
+    """Owned geometry nodes of ``msh``, gathered and sorted (rank-independent).
+
+    Sorted on values rounded to 1e-9: a node computed by another cell (another partition)
+    may differ in the last bits, which must not change its place in the order.
+    """
     n = msh.geometry.index_map().size_local
     p = np.concatenate(msh.comm.allgather(msh.geometry.x[:n, :2]))
-    return p[np.lexsort((p[:, 1], p[:, 0]))]
+    r = np.round(p, 9)
+    return p[np.lexsort((r[:, 1], r[:, 0]))]
 
 
 def _fingerprints(c: MPI.Comm) -> dict:
