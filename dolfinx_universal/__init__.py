@@ -28,6 +28,7 @@ from .graded import graded_mesh
 from .moving import MovingDomain
 from .moving_problem import MovingLinearProblem, MovingStokes
 from .quality import quality_report
+from .relax import relax_vertices
 from .validation import MeshingError
 
 try:
@@ -68,4 +69,5 @@ __all__ = [
     "positively_cut",
     "quality_report",
     "refine_uniform",
+    "relax_vertices",
 ]

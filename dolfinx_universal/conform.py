@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import TYPE_CHECKING
 
 from mpi4py import MPI
@@ -16,6 +17,7 @@ from dolfinx import mesh as dmesh
 from ._geometry import Bool, Float, Int
 from .background import GRADATION, vertex_sizes
 from .checks import (
+    CellLocator,
     classification_problems,
     conforming_problems,
     containment_problems,
@@ -25,6 +27,7 @@ from .checks import (
 )
 from .classify import positively_cut
 from .pipeline import band_cells, classify_near, gamma_h, map_band, perturb, project_band
+from .relax import relax_band
 from .validation import MeshingError, Problem, collective_call, raise_collective
 
 if TYPE_CHECKING:
@@ -73,7 +76,8 @@ class ConformingMesh:
     sign: npt.NDArray[np.float64]
     """Final vertex signs (-1 inside, +1 on Gamma after snapping), ``(num_vertices,)``."""
     background_x: npt.NDArray[np.float64]
-    """Vertex positions in the (perturbed) background, ``(num_vertices, 2)``."""
+    """Vertex positions in the (perturbed) background, ``(num_vertices, 2)``; a vertex the
+    relaxation slid along Gamma has one that projects onto its new image."""
     on_positive_edge: npt.NDArray[np.bool_]
     """Vertices snapped onto Gamma, ``(num_vertices,)``."""
     h: npt.NDArray[np.float64]
@@ -238,8 +242,11 @@ class UniversalMesh:
         ``"warn"`` (a :class:`UserWarning` naming the places) or ``"raise"`` (a
         :class:`~dolfinx_universal.validation.MeshingError`).
     relax
-        Relax the vertices near Gamma after ``M_h`` to improve the worst element quality
-        (connectivity unchanged).
+        Relax the vertices near Gamma after ``M_h`` (:mod:`dolfinx_universal.relax`): the
+        band's inside vertices move and the vertices on Gamma slide along it to raise the
+        worst quality (smallest angle and circumradius / inradius) of the kept triangles
+        around them; connectivity unchanged, a move is kept only if it helps and keeps
+        the triangles valid. ``False`` gives the plain ``M_h`` images.
     """
 
     def __init__(
@@ -253,7 +260,7 @@ class UniversalMesh:
         local_size: bool = False,
         min_angle: float = 10.0,
         on_low_quality: str = "warn",
-        relax: bool = False,
+        relax: bool = True,
     ) -> None:
         _check_background(background)
         eta, min_angle = float(eta), float(min_angle)
@@ -345,6 +352,13 @@ class UniversalMesh:
             comm,
             conforming_problems(x, y, moved, c2v[pe.near_kept], pe.in_kept, self._outer_vertices),
         )
+        if self.relax:
+            t_relax = time.perf_counter()
+            y, xp, moved = relax_band(
+                comm, imv, boundary.closest_point, boundary.normal, x, xp, y, s, phi, band,
+                pe.on_edge, pe.in_kept, c2v[pe.near_kept], self._outer_vertices, normal, self.h,
+            )[:3]  # fmt: skip
+            timings["relax"] = time.perf_counter() - t_relax
         angle_range = self._check_quality(y, moved, c2v[pe.near_kept])
         timings["map"] = time.perf_counter() - t2
         return StraightMap(
@@ -379,7 +393,9 @@ class UniversalMesh:
         # Containment first: a domain leaving the background also breaks Gamma_h there, and
         # "refine" would point the wrong way.
         cells = near_cells.astype(np.int32)
-        raise_collective(comm, containment_problems(self.background, boundary, cells, comm))
+        raise_collective(
+            comm, containment_problems(self.background, boundary, cells, comm, self._locator)
+        )
         problems, theta = classification_problems(
             xp, s, phi, pe, self._c2v, self._c2f, self._f2c_offsets, self._f2c, imv.size_local
         )
@@ -394,6 +410,11 @@ class UniversalMesh:
         )  # fmt: skip
         raise_collective(comm, topo_problems)
         return max_theta, num_loops, num_pieces
+
+    @cached_property
+    def _locator(self) -> CellLocator:
+        """Point location in the background's local cells (built at the first use)."""
+        return CellLocator(self._x, self._c2v)
 
     def _check_quality(
         self, y: npt.NDArray[np.float64], moved: npt.NDArray[np.bool_], cells: npt.NDArray[np.int32]
@@ -499,7 +520,7 @@ def conform(
     background: dmesh.Mesh, boundary: Boundary, *, R_r: float | None = None,
     alpha: float | None = None, eta: float = 0.2, relaxation_factor: float = 3.0,
     local_size: bool = False, min_angle: float = 10.0, on_low_quality: str = "warn",
-    relax: bool = False,
+    relax: bool = True,
 ) -> ConformingMesh:  # fmt: skip
     """Conform a background triangulation to the domain bounded by ``boundary``.
 

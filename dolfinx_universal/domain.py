@@ -313,6 +313,7 @@ def mesh_domain(
     size_factor: float | None = None,
     max_rounds: int = 8,
     max_cells: float = 5e6,
+    relax: bool = True,
 ) -> MeshedDomain:
     """Mesh the domain bounded by ``boundary``: the one call a user makes (collective).
 
@@ -358,6 +359,9 @@ def mesh_domain(
         Largest number of local refinements.
     max_cells
         Largest background the geometry may ask for.
+    relax
+        Relax the vertices near Gamma after ``M_h`` (see
+        :class:`~dolfinx_universal.conform.UniversalMesh`).
 
     Returns
     -------
@@ -430,6 +434,7 @@ def mesh_domain(
                 local_size=True,
                 min_angle=min_angle,
                 on_low_quality="raise",
+                relax=relax,
             )
             timings["conform"] += time.perf_counter() - t
             t = time.perf_counter()

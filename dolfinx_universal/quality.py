@@ -15,7 +15,7 @@ from .classify import positively_cut
 if TYPE_CHECKING:
     from .conform import ConformingMesh
 
-__all__ = ["cell_quality", "edge_ratio", "quality_report", "radius_ratio"]
+__all__ = ["background_positions", "cell_quality", "edge_ratio", "quality_report", "radius_ratio"]
 
 
 def edge_ratio(x: npt.NDArray[np.float64], cells: npt.NDArray) -> npt.NDArray[np.float64]:
@@ -43,10 +43,26 @@ def quality_report(cm: ConformingMesh) -> dict[str, float | int]:
     moved), ``percent_unaltered``, ``theta_min_deg``, ``theta_max_deg``, ``q_max`` (max
     circumradius/inradius), ``Q3_max``, ``Q2_max``, ``Q1_max`` (max longest/shortest edge
     over triangles with 3, 2 and 1 vertices inside the domain; 0 when there are none),
-    ``n_inverted`` and ``min_area_ratio`` (conforming over background area).
+    ``n_inverted`` and ``min_area_ratio`` (conforming area over the area of the triangle in
+    the original background: the relaxation may move ``background_x`` of the vertices on
+    Gamma, the orientation is checked against the background itself).
     """
     nco = cm.mesh.topology.index_map(2).size_local
-    return cell_quality(cm.mesh.comm, cm.x, cm.background_x, cm.cells[:nco], cm.sign, cm.moved)
+    return cell_quality(
+        cm.mesh.comm, cm.x, background_positions(cm), cm.cells[:nco], cm.sign, cm.moved
+    )
+
+
+def background_positions(cm: ConformingMesh) -> npt.NDArray[np.float64]:
+    """Original background positions of the vertices of ``cm``, ``(num_vertices, 2)``."""
+    bg = cm.background
+    topo = bg.topology
+    topo.create_connectivity(2, 0)
+    c2v = topo.connectivity(2, 0).array.reshape(-1, 3)
+    imv = topo.index_map(0)
+    v2n = np.empty(imv.size_local + imv.num_ghosts, dtype=np.int32)
+    v2n[c2v] = bg.geometry.dofmaps[0][:, :3]
+    return bg.geometry.x[v2n[cm.vertex_map], :2]
 
 
 def cell_quality(

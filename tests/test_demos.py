@@ -49,6 +49,7 @@ def test_quality_demo(tmp_path):
     keys = {
         "h_over_R",
         "eta",
+        "relax",
         "n_cells",
         "n_positively_cut",
         "theta_min_deg",
@@ -62,6 +63,7 @@ def test_quality_demo(tmp_path):
     keys = {
         "level",
         "eta",
+        "relax",
         "n_cells",
         "n_positively_cut",
         "percent_unaltered",
@@ -70,6 +72,13 @@ def test_quality_demo(tmp_path):
         "q_max",
     }
     assert all(set(r) == keys for r in serial["spline"])
+    # Every study before and after the relaxation; the relaxed circles meet the targets.
+    for rows in (serial["circle"], serial["spline"]):
+        assert sorted({r["relax"] for r in rows}) == [False, True]
+    assert serial["parameters"]["relax"] == [False, True]
+    for r in serial["circle"]:
+        if r["relax"]:
+            assert r["theta_min_deg"] >= 40.0 and r["theta_max_deg"] <= 95.0 and r["q_max"] <= 2.6
     for name in ("circle_meshes.png", "circle_quality.png", "spline_meshes.png"):
         assert (tmp_path / "s" / name).stat().st_size > 10_000
     _same_run(serial, _run("quality.py", 2, tmp_path / "p"), rtol=1e-12)

@@ -120,34 +120,39 @@ def test_low_quality_warns_in_conform_and_is_refined_by_mesh_domain():
         lambda t: -7.5 * np.cos(5 * t),
     )
     bg = du.equilateral_mesh(comm, [[-1.6, -1.6], [1.6, 1.6]], 0.08)
+    # Without the relaxation the images of M_h have angles well below 25 degrees here.
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        cm = du.conform(bg, r, min_angle=25.0)
+        cm = du.conform(bg, r, min_angle=25.0, relax=False)
     assert cm.moved_angle_range[0] < 25.0
     assert any("below the quality floor of 25 degrees near (" in str(w.message) for w in caught)
     with pytest.raises(du.MeshingError, match="quality floor"):
-        du.conform(bg, r, min_angle=25.0, on_low_quality="raise")
-    # A floor above the natural 10-14 degrees of these meshes is reached by refining.
-    md = du.mesh_domain(comm, r, 0.3, degree=2, min_angle=14.0)
-    assert md.certificate.min_angle_deg >= 14.0
+        du.conform(bg, r, min_angle=25.0, on_low_quality="raise", relax=False)
+    # A floor above the natural 10-14 degrees of unrelaxed meshes is reached by refining.
+    md = du.mesh_domain(comm, r, 0.3, degree=2, min_angle=14.0, relax=False)
+    assert md.certificate.min_angle_deg >= 14.0 and md.certificate.refinement_rounds >= 1
     assert abs(area(md.mesh) - polar_area(r)) < 1e-4
+    # The relaxation lifts the same floor without any refinement.
+    md = du.mesh_domain(comm, r, 0.3, degree=2, min_angle=25.0)
+    assert md.certificate.min_angle_deg >= 25.0 and md.certificate.refinement_rounds == 0
 
 
 def test_refinement_rounds_repair_an_undersized_background():
     """With the target size equal to the feature size (a third of the default) the first
-    background fails the checks; local refinement repairs it in a few rounds."""
+    background fails the checks without the relaxation; local refinement repairs it in a
+    few rounds."""
     r = du.PolarCurve(
         lambda t: 1 + 0.3 * np.cos(5 * t),
         lambda t: -1.5 * np.sin(5 * t),
         lambda t: -7.5 * np.cos(5 * t),
     )
-    md = du.mesh_domain(comm, r, 0.3, degree=3, size_factor=0.7)
+    md = du.mesh_domain(comm, r, 0.3, degree=3, size_factor=0.7, relax=False)
     cert = md.certificate
     assert 1 <= cert.refinement_rounds <= 8 and len(cert.refinements) == cert.refinement_rounds
     assert abs(area(md.mesh) - polar_area(r)) < 1e-5
     assert cert.min_jacobian_ratio > 0
     with pytest.raises(du.MeshingError, match="still failing after 0 local refinements"):
-        du.mesh_domain(comm, r, 0.3, degree=3, size_factor=0.7, max_rounds=0)
+        du.mesh_domain(comm, r, 0.3, degree=3, size_factor=0.7, max_rounds=0, relax=False)
 
 
 def test_errors_no_size_can_fix():
@@ -175,7 +180,10 @@ def test_given_box_channel():
         box=[[0.0, 0.0], [2.2, 0.41]],
     )
     exact = 2.2 * 0.41 - np.pi * 0.05**2
-    assert abs(area(md.mesh) - exact) < 1e-7
+    # q = 2: the area error of the cylinder is O(h^4 / rho^3) per cell, about 1e-7 here
+    # (8e-8 for the images of M_h, 1.1e-7 relaxed: vertices slid along Gamma lengthen some
+    # of its chords).
+    assert abs(area(md.mesh) - exact) < 2e-7
     assert md.certificate.num_loops == 1
 
 

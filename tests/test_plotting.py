@@ -208,7 +208,9 @@ def test_gamma_h_is_drawn_curved(k):
     segs = gamma_h_segments(ax)
     pts = np.concatenate(segs)
     r = np.linalg.norm(pts, axis=1)
-    assert np.abs(r - 1.0).max() < (1e-6 if k == 3 else 1e-12 + 1.0)
+    # Degree-3 interpolation of the unit circle over chords of about h = 0.1: O(h^4 / 100),
+    # 1.0e-6 measured (relaxed vertices on Gamma lengthen some chords).
+    assert np.abs(r - 1.0).max() < (2e-6 if k == 3 else 1e-12 + 1.0)
     chords = np.array([np.linalg.norm(s[-1] - s[0]) for s in segs])
     assert np.isclose(chords.sum(), 2 * np.pi, rtol=1e-2)  # the whole circle
     if k == 1:  # straight edges: chord midpoints are h^2 / 8 inside the circle

@@ -1,0 +1,462 @@
+"""Vertex relaxation after M_h: move the band's vertices to improve the worst triangles.
+
+After ``M_h`` the triangles at Gamma are the worst of a universal mesh (Rangarajan & Lew
+2014: minimum angles of about 21-23 degrees on equilateral backgrounds). Connectivity is
+fixed, so quality can only be gained by moving vertices: each inside vertex of the band
+moves freely, each vertex on Gamma slides along Gamma (candidates are projected by the
+closest-point map), to maximise the worst :func:`shape_quality` (smallest angle and
+radius ratio) of the kept triangles around it. This is the max-min (nonsmooth) vertex
+optimisation of optimisation-based smoothing (Freitag & Ollivier-Gooch 1997; Amenta, Bern
+& Eppstein 1999), solved here by a compass (pattern) search: a few directions and step
+lengths per vertex and sweep, the step growing after a success and shrinking where no
+candidate helps. A move is accepted only if it strictly raises the vertex's worst incident
+quality and keeps every incident kept triangle positively oriented, so validity and the
+global minimum of the quality never get worse.
+
+Vertices that share a kept triangle never move together: the vertices are coloured (Jones &
+Plassmann 1993, first fit) with priorities hashed from their background coordinates, so the
+colours, and therefore the result, do not depend on the partition. A vertex's star may span
+ranks: each rank rates the candidates on its owned triangles and a min-reduction over the
+ranks gives every rank (owner and ghosts) the same ratings, hence the same move.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING, NamedTuple
+
+from mpi4py import MPI
+
+import numpy as np
+import numpy.typing as npt
+
+from ._geometry import Bool, Float, Int
+from .validation import collective_call, vertex_reduce
+
+if TYPE_CHECKING:
+    from dolfinx.common import IndexMap
+
+__all__ = [
+    "Relaxation",
+    "coordinate_priority",
+    "shape_quality",
+    "movable_vertices",
+    "relax_band",
+    "relax_vertices",
+    "vertex_colours",
+]
+
+DIRECTIONS = 8
+"""Compass directions per vertex and sweep (rotated by the golden angle from sweep to sweep)."""
+STEPS = (1.0, 1.0 / 3.0)
+"""Step lengths tried along each direction, in units of the vertex's current step."""
+GAMMA_STEPS = (1.0,)
+"""Step lengths tried along Gamma (both ways) by the vertices on Gamma, as ``STEPS``."""
+INITIAL_STEP = 0.25
+"""First step of a vertex, in units of its mesh size ``h``."""
+MAX_STEP = 0.5
+"""Largest step of a vertex, in units of ``h``."""
+SWEEPS = 12
+"""Default number of sweeps over all colours."""
+ACTIVE_BELOW = 1.1
+"""A vertex moves in a sweep only if a triangle around it has a :func:`shape_quality`
+below this (1 at the targets, 1.3 for an equilateral triangle)."""
+TARGET_ANGLE = 40.0
+"""Smallest angle (degrees) at which the angle term of :func:`shape_quality` is 1."""
+TARGET_RADIUS_RATIO = 2.6
+"""Circumradius / inradius at which the radius term of :func:`shape_quality` is 1."""
+_ANGLE_SCALE = 1.0 / np.sin(np.radians(TARGET_ANGLE))
+_RADIUS_SCALE = TARGET_RADIUS_RATIO / 2.0
+_MAX_COLOURS = 62
+
+
+class Relaxation(NamedTuple):
+    """Result of :func:`relax_vertices` (process-local arrays, owned and ghost vertices)."""
+
+    y: Float
+    """Relaxed vertex images ``(num_vertices, 2)``."""
+    x: Float
+    """Background positions; those of the vertices slid along Gamma moved with them
+    (``pi(x) = y`` there, as the curved maps need) ``(num_vertices, 2)``."""
+    moved: Bool
+    """Vertices whose image differs from their original position ``(num_vertices,)``."""
+    num_moves: int
+    """Accepted moves, over all sweeps and ranks."""
+    num_sweeps: int
+    """Sweeps made."""
+
+
+def shape_quality(p: Float, a: Float, b: Float, orientation: Float) -> Float:
+    """Quality of triangles ``(p, a, b)`` against the relaxation's targets; -1 where inverted.
+
+    ``min(sin(theta_min) / sin(40 deg), (2 r / R) / (2 / 2.6))``: each term is 1 at its
+    target (smallest angle 40 degrees, circumradius / inradius ``R / r = 2.6``) and about
+    1.3 for an equilateral triangle. The angle term alone leaves near-right triangles with
+    a largest angle around 95 degrees; the radius ratio alone lets the smallest angle fall
+    to 35 degrees; their minimum keeps both in check. With ``l`` the edge lengths and ``A``
+    the area, ``sin(theta_min) = 2 A l_min / (l_0 l_1 l_2)`` (the smallest angle lies
+    between the two longest edges) and ``2 r / R = 16 A^2 / ((l_0 + l_1 + l_2) l_0 l_1 l_2)``.
+
+    Parameters
+    ----------
+    p, a, b
+        Corners ``(..., 2)`` (broadcast together).
+    orientation
+        +1 or -1: the sign the signed area must have (``(...)``, broadcast).
+
+    Returns
+    -------
+    The quality where ``orientation * area > 0``; -1 elsewhere, shape ``(...)``.
+    """
+    u, v = a - p, b - p
+    ux, uy, vx, vy = u[..., 0], u[..., 1], v[..., 0], v[..., 1]
+    cross = orientation * (ux * vy - uy * vx)  # 2 A
+    lu, lv = ux * ux + uy * uy, vx * vx + vy * vy
+    w = b - a
+    lw = w[..., 0] ** 2 + w[..., 1] ** 2
+    su, sv, sw = np.sqrt(lu), np.sqrt(lv), np.sqrt(lw)
+    prod = su * sv * sw
+    with np.errstate(divide="ignore", invalid="ignore"):
+        angle = cross * np.minimum(np.minimum(su, sv), sw) / prod
+        radius = 4.0 * cross * cross / ((su + sv + sw) * prod)
+    q = np.minimum(angle * _ANGLE_SCALE, radius * _RADIUS_SCALE)
+    return np.where((cross > 0) & (prod > 0), q, -1.0)
+
+
+def coordinate_priority(x: Float) -> Float:
+    """Pseudo-random priorities in ``[0, 1)`` hashed from coordinates ``(n, 2)``, ``(n,)``.
+
+    A function of the coordinates' bits only (splitmix64), so that a vertex has the same
+    priority on every rank and for every partition.
+    """
+    bits = np.ascontiguousarray(x[:, :2], dtype=np.float64).view(np.uint64)
+
+    def mix(z: npt.NDArray[np.uint64]) -> npt.NDArray[np.uint64]:
+        z = z + np.uint64(0x9E3779B97F4A7C15)
+        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        return z ^ (z >> np.uint64(31))
+
+    with np.errstate(over="ignore"):
+        z = mix(bits[:, 0] ^ mix(bits[:, 1]))
+    return (z >> np.uint64(11)).astype(np.float64) * 2.0**-53
+
+
+class _Sub:
+    """The movable vertices as a (sub) index map: reductions over them only."""
+
+    def __init__(self, imv: IndexMap, vertices: Int) -> None:
+        self.comm: MPI.Comm = imv.comm
+        if self.comm.size == 1:
+            self.map = None
+            self.vertices = np.asarray(vertices, dtype=np.int32)
+            self.size_local = len(self.vertices)
+        else:
+            from dolfinx.cpp.common import create_sub_index_map
+
+            self.map, parent = create_sub_index_map(imv, np.asarray(vertices, np.int32), False)
+            self.vertices = np.asarray(parent, dtype=np.int32)
+            self.size_local = self.map.size_local
+
+    def reduce(self, values: Float, op: str) -> Float:
+        return values if self.map is None else vertex_reduce(self.map, values, op)
+
+
+def vertex_colours(sub: _Sub, cells: Int, priority: Float) -> Int:
+    """Colour vertices so that no two of one colour share a triangle (collective).
+
+    Jones-Plassmann with first fit: in each round the uncoloured vertices whose priority is
+    the largest among the uncoloured vertices of their triangles (on every rank) take the
+    smallest colour that no vertex of their triangles has yet.
+
+    Parameters
+    ----------
+    sub
+        The vertices to colour ``(m,)``.
+    cells
+        Triangles (owned, each on one rank) in the numbering of ``sub``, -1 for vertices not
+        to colour, ``(k, 3)``.
+    priority
+        Distinct priorities of the vertices ``(m,)``, the same on every rank.
+
+    Returns
+    -------
+    Colours ``0, 1, ...`` of the vertices ``(m,)``.
+    """
+    m = len(sub.vertices)
+    colour = np.full(m, -1, dtype=np.int64)
+    valid = cells >= 0
+    corner = np.where(valid, cells, 0)
+    # Corners sorted by vertex: per-vertex reductions over its triangles are segments.
+    cell_of, _ = np.nonzero(valid)
+    vc = cells[valid]
+    order = np.argsort(vc, kind="stable")
+    cell_of, vc = cell_of[order], vc[order]
+    starts = np.flatnonzero(np.diff(vc, prepend=-1))
+    seg = vc[starts]
+    bits = 2 ** np.arange(_MAX_COLOURS, dtype=np.int64)
+    used = np.zeros(m, dtype=np.int64)  # bit c: a vertex of colour c shares a triangle
+    while sub.comm.allreduce(bool((colour[: sub.size_local] < 0).any()), op=MPI.LOR):
+        pr = np.where(valid & (colour[corner] < 0), priority[corner], -1.0).max(axis=1)
+        vmax = np.full(m, -1.0)
+        if len(starts):
+            vmax[seg] = np.maximum.reduceat(pr[cell_of], starts)
+        vmax = sub.reduce(vmax, "max")
+        new = np.flatnonzero((colour < 0) & (vmax <= priority))
+        free = (used[new, None] & bits[None]) == 0
+        if len(new) and not free.any(axis=1).all():
+            raise RuntimeError(f"vertex colouring: more than {_MAX_COLOURS} colours needed")
+        colour[new] = np.argmax(free, axis=1)
+        # Record the new colours in the masks of the vertices sharing a triangle.
+        cbits = np.where(valid & (colour[corner] >= 0), 2 ** np.maximum(colour[corner], 0), 0)
+        cmask = cbits[:, 0] | cbits[:, 1] | cbits[:, 2]
+        if len(starts):
+            used[seg] |= np.bitwise_or.reduceat(cmask[cell_of], starts)
+        if sub.map is not None:
+            flags = sub.reduce(((used[:, None] & bits[None]) > 0).astype(np.float64), "max")
+            used = (flags > 0).astype(np.int64) @ bits
+    return colour
+
+
+def relax_vertices(
+    comm: MPI.Comm,
+    imv: IndexMap,
+    closest_point: Callable[[Float], Float],
+    normal_at: Callable[[Float], Float],
+    x0: Float,
+    xp: Float,
+    y: Float,
+    cells: Int,
+    movable: Bool,
+    on_gamma: Bool,
+    normal: Float,
+    phi: Float,
+    h: Float,
+    *,
+    sweeps: int = SWEEPS,
+) -> Relaxation:
+    """Relax the images of vertices to raise the worst :func:`shape_quality` (collective).
+
+    Sweeps over the colours of :func:`vertex_colours`; in each, every vertex of the colour
+    with a triangle below :data:`ACTIVE_BELOW` tries :data:`DIRECTIONS` compass directions
+    at :data:`STEPS` times its step (the vertices on Gamma: both ways along Gamma at
+    :data:`GAMMA_STEPS`) and takes the best candidate if it is strictly better than where
+    it is.
+
+    Parameters
+    ----------
+    comm
+        Communicator of the mesh.
+    imv
+        Vertex index map.
+    closest_point, normal_at
+        Projection onto Gamma and the unit outward normal at points of Gamma (for the
+        vertices on Gamma).
+    x0
+        Original background positions ``(num_vertices, 2)`` (priorities, moved flags).
+    xp
+        Background positions used by the curved maps ``(num_vertices, 2)``.
+    y
+        Vertex images after ``M_h`` ``(num_vertices, 2)``.
+    cells
+        The owned kept triangles whose quality counts ``(k, 3)``; every triangle of a movable
+        vertex must be among the owned ``cells`` of some rank.
+    movable
+        Vertices that may move, the same on every rank ``(num_vertices,)``.
+    on_gamma
+        Vertices on Gamma: they slide along it ``(num_vertices,)``.
+    normal
+        Unit normals of Gamma at the vertices on Gamma ``(num_vertices, 2)`` (other rows are
+        not read): the directions of their slides are tangent to Gamma there.
+    phi
+        Signed distances of the background positions ``xp`` ``(num_vertices,)`` (rows of
+        the vertices on Gamma are read): a vertex that slides to ``y`` gets the background
+        position ``y + phi N(y)``, which projects onto ``y`` and lies as far from Gamma as
+        before (so the exactly conforming map ``G_h`` still projects a background edge).
+    h
+        Mesh size at each vertex ``(num_vertices,)`` (scales the steps).
+    sweeps
+        Sweeps over all colours (fewer when two sweeps in a row move nothing).
+
+    Returns
+    -------
+    The relaxed images and background positions, and the moved flags.
+    """
+    y0, y, xp = y, y.copy(), xp.copy()
+    sub = _Sub(imv, np.flatnonzero(movable))
+    verts = sub.vertices
+    m = len(verts)
+    local = np.full(len(y), -1, dtype=np.int64)
+    local[verts] = np.arange(m)
+    csub = local[cells]
+    colour = vertex_colours(sub, csub, coordinate_priority(x0[verts]))
+    ncol = comm.allreduce(int(colour.max(initial=-1)) + 1, op=MPI.MAX)
+    # Star entries (vertex, opposite corners a, b, orientation), sorted by colour and vertex
+    # so that each colour is a slice and each vertex a segment of it.
+    cell_idx, corner = np.nonzero(csub >= 0)
+    ev = csub[cell_idx, corner]
+    order = np.lexsort((ev, colour[ev]))
+    cell_idx, corner, ev = cell_idx[order], corner[order], ev[order]
+    ea = cells[cell_idx, (corner + 1) % 3]
+    eb = cells[cell_idx, (corner + 2) % 3]
+    c = cells[cell_idx]
+    d1, d2 = y[c[:, 1]] - y[c[:, 0]], y[c[:, 2]] - y[c[:, 0]]
+    eo = np.sign(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])[:, None]
+    bounds = np.searchsorted(colour[ev], np.arange(ncol + 1))
+    groups = [
+        (slice(bounds[k], bounds[k + 1]), np.flatnonzero(colour == k)) for k in range(ncol)
+    ]  # each colour's entries, and its vertices (with or without entries on this rank)
+    gamma = np.flatnonzero(on_gamma[verts])
+    tangent = normal[verts[gamma]] @ np.array([[0.0, 1.0], [-1.0, 0.0]])
+    step = INITIAL_STEP * h[verts]
+    hmax = MAX_STEP * h[verts]
+    steps = np.asarray(STEPS)
+    gsteps = np.asarray(GAMMA_STEPS)
+    tangential = np.concatenate([gsteps, -gsteps])[:, None]
+    nc = 1 + DIRECTIONS * len(steps)
+    full_step = np.zeros((2, nc), dtype=bool)  # candidates at the full step: inside, on Gamma
+    full_step[0, 1 : 1 + DIRECTIONS] = True
+    full_step[1, 1 : 1 + len(tangential)] = np.concatenate([gsteps, gsteps]) == gsteps[0]
+    is_gamma = np.zeros(m, dtype=np.int64)
+    is_gamma[gamma] = 1
+    golden = np.pi * (3.0 - np.sqrt(5.0))
+    num_moves, done, idle = 0, 0, 0
+    vstart = np.flatnonzero(np.diff(ev, prepend=-1))  # each vertex's entries are contiguous
+    for sweep in range(sweeps):
+        # Only vertices with a triangle below ACTIVE_BELOW move in this sweep.
+        star = np.full(m, np.inf)
+        if len(ev):
+            q0 = shape_quality(y[verts[ev]], y[ea], y[eb], eo[:, 0])
+            star[ev[vstart]] = np.minimum.reduceat(q0, vstart)
+        active = sub.reduce(star, "min") < ACTIVE_BELOW
+        if not comm.allreduce(bool(active[: sub.size_local].any()), op=MPI.LOR):
+            break
+        theta = sweep * golden + 2.0 * np.pi * np.arange(DIRECTIONS) / DIRECTIONS
+        dirs = np.column_stack([np.cos(theta), np.sin(theta)])
+        offsets = np.concatenate([np.zeros((1, 2)), (steps[:, None, None] * dirs).reshape(-1, 2)])
+        # A vertex's candidates depend on its own position only, which changes only when
+        # its colour moves: generate (and project) them all at once.
+        cand = y[verts][:, None, :] + step[:, None, None] * offsets[None]
+        # Vertices on Gamma: +-tangent steps, projected onto Gamma (the other candidates
+        # repeat their current position).
+        ga = np.flatnonzero(active[gamma])
+        g = gamma[ga]
+        slide = step[g, None, None] * tangential[None] * tangent[ga, None, :]
+        pg = (y[verts[g]][:, None, :] + slide).reshape(-1, 2)
+        cand[g] = y[verts[g]][:, None, :]
+        cand[g, 1 : 1 + len(tangential)] = np.asarray(
+            collective_call(comm, "closest-point projection", closest_point, pg)
+        ).reshape(len(g), len(tangential), 2)
+        moves = 0
+        for e, S in groups:
+            E = e.start + np.flatnonzero(active[ev[e]])
+            starts = np.flatnonzero(np.diff(ev[E], prepend=-1))
+            S = S[active[S]]
+            q = shape_quality(cand[ev[E]], y[ea[E]][:, None], y[eb[E]][:, None], eo[E])
+            qmin = np.minimum.reduceat(q, starts, axis=0) if len(starts) else q[:0]
+            if sub.map is None:
+                qs, S = qmin, ev[E][starts]
+            else:
+                qv = np.full((m, nc), np.inf)
+                qv[ev[E][starts]] = qmin
+                qs = sub.reduce(qv, "min")[S]
+            best = np.argmax(qs, axis=1)
+            gain = qs[np.arange(len(S)), best] > qs[:, 0]
+            win, bw = S[gain], best[gain]
+            y[verts[win]] = cand[win, bw]
+            # Grow the step after a full step, shrink it where nothing helped.
+            factor = np.full(len(S), 0.4)
+            factor[gain] = np.where(full_step[is_gamma[win], bw], 1.5, 0.75)
+            step[S] = np.minimum(factor * step[S], hmax[S])
+            moves += int(np.count_nonzero(win < sub.size_local))
+        done = sweep + 1
+        moves = comm.allreduce(moves, op=MPI.SUM)
+        num_moves += moves
+        idle = idle + 1 if moves == 0 else 0
+        if idle >= 2:
+            break
+    slid = verts[gamma]
+    slid = slid[np.any(y[slid] != y0[slid], axis=1)]
+    n_new = np.asarray(collective_call(comm, "the normal", normal_at, y[slid]), dtype=float)
+    xp[slid] = y[slid] + phi[slid, None] * n_new.reshape(-1, 2)
+    moved = np.any(y != x0, axis=1)
+    return Relaxation(y, xp, moved, num_moves, done)
+
+
+def movable_vertices(
+    imv: IndexMap, sign: Float, band: Int, on_gamma: Bool, in_kept: Bool, fixed: Int
+) -> Bool:
+    """The vertices the relaxation may move, agreed on by every rank (collective).
+
+    Inside vertices of the band and the vertices on Gamma, except ``fixed`` ones (the
+    background's outer boundary, known on some ranks only) and vertices of no kept triangle.
+
+    Parameters
+    ----------
+    imv
+        Vertex index map.
+    sign
+        Vertex signs ``(num_vertices,)``.
+    band
+        Band vertices (within ``R_r`` of Gamma) ``(num_band,)``.
+    on_gamma
+        Vertices snapped onto Gamma ``(num_vertices,)``.
+    in_kept
+        Vertices of a kept triangle near Gamma ``(num_vertices,)``.
+    fixed
+        Vertices that must not move ``(n,)``.
+
+    Returns
+    -------
+    ``(num_vertices,)`` flags.
+    """
+    flag = np.zeros(len(sign))
+    inside_band = np.zeros(len(sign), dtype=bool)
+    inside_band[band] = sign[band] < 0
+    flag[(inside_band | on_gamma) & in_kept] = 1.0
+    flag[fixed] = 0.0
+    return vertex_reduce(imv, flag, "min") > 0
+
+
+def relax_band(
+    comm: MPI.Comm,
+    imv: IndexMap,
+    closest_point: Callable[[Float], Float],
+    normal_at: Callable[[Float], Float],
+    x0: Float,
+    xp: Float,
+    y: Float,
+    sign: Float,
+    phi: Float,
+    band: Int,
+    on_gamma: Bool,
+    in_kept: Bool,
+    cells: Int,
+    fixed: Int,
+    normal: Float,
+    h: Float,
+    *,
+    sweeps: int = SWEEPS,
+) -> Relaxation:
+    """:func:`relax_vertices` on the band's inside vertices and the vertices on Gamma.
+
+    Parameters as in :func:`movable_vertices` and :func:`relax_vertices` (``cells``: the
+    owned kept triangles at the band). Collective.
+    """
+    movable = movable_vertices(imv, sign, band, on_gamma, in_kept, fixed)
+    return relax_vertices(
+        comm,
+        imv,
+        closest_point,
+        normal_at,
+        x0,
+        xp,
+        y,
+        cells,
+        movable,
+        on_gamma,
+        normal,
+        phi,
+        h,
+        sweeps=sweeps,
+    )
