@@ -14,7 +14,7 @@ import basix
 import numpy as np
 import numpy.typing as npt
 import ufl
-from dolfinx import fem
+from dolfinx import fem, la
 from dolfinx import mesh as dmesh
 
 from .boundaries import Boundary
@@ -89,7 +89,8 @@ class MovingDomain:
     options
         Keyword options of :class:`~dolfinx_universal.conform.UniversalMesh`: ``R_r``,
         ``alpha``, ``eta``, ``relaxation_factor``, ``local_size`` (``True`` for graded
-        backgrounds), ``min_angle``, ``on_low_quality``.
+        backgrounds), ``min_angle``, ``on_low_quality``, ``relax`` (the vertex relaxation
+        after ``M_h``, on by default).
 
     See Also
     --------
@@ -117,6 +118,7 @@ class MovingDomain:
         """The background with degree-q geometry; its nodes move, its topology never does."""
         self.comm: MPI.Comm = background.comm
         self._x0 = self.mesh.geometry.x[:, :2].copy()
+        self._node_vector: la.Vector | None = None  # owned -> ghost copies of moved nodes
         self._dofmap = self.mesh.geometry.dofmaps[0]
         topo = self.mesh.topology
         self._nco = topo.index_map(2).size_local
@@ -294,7 +296,9 @@ class MovingDomain:
         # cell's curved nodes win.
         x = self.mesh.geometry.x
         order = np.argsort(kept, kind="stable")
-        x[self._dofmap[redo[order]].ravel(), :2] = nodes[order].reshape(-1, 2)
+        rows = self._dofmap[redo[order]].ravel()
+        x[rows, :2] = nodes[order].reshape(-1, 2)
+        self._sync_ghost_nodes(rows, x)
         self._dirty, self._kept = near, sm.kept
         self.active.x.array[self._cell_dof[redo]] = kept.astype(np.float64)
         self.active_cells = np.flatnonzero(sm.kept).astype(np.int32)
@@ -318,6 +322,25 @@ class MovingDomain:
         )
         self.steps.append(report)
         return report
+
+    def _sync_ghost_nodes(self, rows: npt.NDArray[np.int32], x: npt.NDArray[np.float64]) -> None:
+        """Copy the owners' values of the rewritten nodes to their ghosts (collective).
+
+        A rank that holds only the outside (inactive, affine) cell of an immersed facet as a
+        ghost would otherwise keep a straight node there; the owner of a facet node owns one
+        of its two cells and has the other as a shared-facet ghost, so its value is the
+        active cell's.
+        """
+        if self.comm.size == 1:
+            return
+        if self._node_vector is None:  # the current nodes; then only the rewritten ones
+            self._node_vector = la.vector(self.mesh.geometry.index_map(), 2, dtype=np.float64)
+            self._node_vector.array[:] = x[:, :2].ravel()
+        values = self._node_vector.array.reshape(-1, 2)
+        values[rows] = x[rows, :2]
+        self._node_vector.scatter_forward()
+        n = self.mesh.geometry.index_map().size_local
+        x[n:, :2] = values[n:]
 
     def _check_coverage(self, boundary: Boundary) -> None:
         """Raise if ``boundary`` needs a finer background than :meth:`from_motion` built."""

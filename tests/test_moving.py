@@ -140,6 +140,23 @@ def test_moving_under_mpi():
     assert _moving_reports(comm) == _moving_reports(MPI.COMM_SELF)
 
 
+@pytest.mark.mpi
+@needs_ranks(2)
+def test_ghost_nodes_on_gamma_under_mpi():
+    """Every local copy of a node on Gamma_h lies on Gamma, ghosts included: a rank that has
+    only the outside cell of an immersed facet receives the curved node from its owner."""
+    bg = du.equilateral_mesh(comm, [[-1.5, -1.5], [1.5, 1.5]], 1 / 12)
+    md = MovingDomain(bg, 2)
+    V = fem.functionspace(md.mesh, ("Lagrange", 2))
+    md.mesh.topology.create_connectivity(1, 2)
+    for step in range(3):
+        circle = du.Circle((0.01 + 0.03 * step, 0.02), 1.0)
+        md.update(circle)
+        dofs = fem.locate_dofs_topological(V, 1, md.immersed_facets)
+        r = np.linalg.norm(V.tabulate_dof_coordinates()[dofs, :2] - circle.center, axis=1)
+        assert np.abs(r - 1.0).max(initial=0.0) < 1e-13  # rounding of the projection
+
+
 def test_graded_background_with_level_changes_near_gamma():
     """A propeller sweeping through quadtree level changes (finer at the tips): the smoothed
     local size keeps every step valid (the raw, jumping size folded triangles there)."""
