@@ -7,6 +7,7 @@ from mpi4py import MPI
 import numpy as np
 import pytest
 from conftest import needs_ranks
+from test_background import canonical_cells, check_shared_facet_ghosts
 
 import dolfinx_universal  # noqa: F401  (initialises the DOLFINx wheel before dolfinx imports)
 from dolfinx_universal import graded as gr
@@ -343,3 +344,53 @@ def test_graded_mesh_mpi():
     _, cells = acute_quadtree_triangulation(BOX, circle_size)
     assert imap.size_global == c.allreduce(imap.size_local) == len(cells)
     assert c.allreduce(imap.num_ghosts) > 0
+
+
+@pytest.mark.mpi
+@needs_ranks(2)
+@pytest.mark.parametrize(
+    "box, size, options",
+    [
+        (BOX, circle_size, {}),
+        ([[0.0, 0.0], [2.0, 1.0]], 0.05, {}),
+        ([[0.0, 0.0], [1.3, 0.7]], circle_size, {"root_size": 0.1}),
+        ([[0.0, 0.0], [1.0, 1.0]], 5.0, {}),  # one leaf: ranks without cells
+    ],
+)
+def test_graded_mesh_distributed(box, size, options):
+    """Built in parallel (each rank tiles its run of leaves), the same cells with bitwise
+    the same coordinates as on one rank, balanced over the ranks, with shared-facet ghosts."""
+    c = MPI.COMM_WORLD
+    msh = graded_mesh(c, box, size, **options)
+    serial = graded_mesh(MPI.COMM_SELF, box, size, **options)
+    a, b = canonical_cells(msh), canonical_cells(serial)
+    if c.rank == 0:
+        assert a.shape == b.shape and np.array_equal(a, b)
+    n = c.allgather(msh.topology.index_map(2).size_local)
+    # A run holds the leaves starting in its share of the triangles: it is within one leaf
+    # (at most 56 triangles) of an equal share.
+    assert max(n) - min(n) < 2 * 56
+    assert msh.topology.index_map(0).size_global == serial.topology.index_map(0).size_global
+    check_shared_facet_ghosts(msh, serial)
+
+
+def test_balance_in_blocks(monkeypatch):
+    """The balance sweep in small blocks of leaves gives the same triangulation."""
+    x, cells = acute_quadtree_triangulation(BOX, circle_size)
+    monkeypatch.setattr(gr, "_CHUNK", 7)
+    x7, cells7 = acute_quadtree_triangulation(BOX, circle_size)
+    assert np.array_equal(x, x7) and np.array_equal(cells, cells7)
+
+
+@pytest.mark.mpi
+@needs_ranks(2)
+def test_graded_mesh_size_error_on_some_ranks():
+    """A size function failing on the points of one rank only raises on every rank."""
+
+    def size(p):
+        if np.any(p[:, 0] > 0.6):  # the last slice of the root cells' samples only
+            raise RuntimeError("no size there")
+        return np.full(len(p), 0.05)
+
+    with pytest.raises(ValueError, match="no size there"):
+        graded_mesh(MPI.COMM_WORLD, [[0.0, 0.0], [1.0, 1.0]], size, root_size=0.1)
