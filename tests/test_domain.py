@@ -231,7 +231,9 @@ def _fingerprint(c: MPI.Comm) -> dict:
         "n_cells": msh.topology.index_map(2).size_global,
         "area": a,
         "rounds": md.certificate.refinement_rounds,
-        "centroids": cents[np.lexsort((cents[:, 1], cents[:, 0]))],
+        # Sorted on values rounded to 1e-9: centroids of a lattice share coordinates, and
+        # rounding (nodes computed by another cell) must not reorder them.
+        "centroids": cents[np.lexsort(np.round(cents, 9).T[::-1])],
     }
 
 
