@@ -63,8 +63,6 @@ class ConformingMesh:
 
     mesh: dmesh.Mesh
     """Conforming mesh with degree-1 geometry (vertices at ``M_h`` images)."""
-    facet_tags: dmesh.MeshTags
-    """Exterior facets: :data:`IMMERSED` on Gamma_h, :data:`OUTER` on the background boundary."""
     background: dmesh.Mesh
     boundary: Boundary
     cell_map: npt.NDArray[np.int32]
@@ -100,6 +98,28 @@ class ConformingMesh:
     """Closed loops of Gamma_h (one per curve of Gamma, checked)."""
     num_pieces: int = 0
     """Connected pieces of the mesh (as many as the domain has, checked)."""
+    _facet_tags: dmesh.MeshTags | None = field(default=None, repr=False)
+
+    @property
+    def facet_tags(self) -> dmesh.MeshTags:
+        """Exterior facets: :data:`IMMERSED` on Gamma_h, :data:`OUTER` on the background
+        boundary.
+
+        Built at the first access, with the mesh's edges (a fifth of the cost of
+        :meth:`UniversalMesh.conform` otherwise, and not needed to assemble cell
+        integrals); the first access is collective, as DOLFINx's ``create_connectivity``.
+        """
+        if self._facet_tags is None:
+            topo = self.mesh.topology
+            topo.create_connectivity(1, 2)
+            topo.create_connectivity(1, 0)
+            facets = dmesh.exterior_facet_indices(topo)
+            fv = topo.connectivity(1, 0).array.reshape(-1, 2)[facets]
+            values = np.where(self.on_positive_edge[fv].all(axis=1), IMMERSED, OUTER)
+            self._facet_tags = dmesh.meshtags(
+                self.mesh, 1, facets.astype(np.int32), values.astype(np.int32)
+            )
+        return self._facet_tags
 
     @property
     def cells(self) -> npt.NDArray[np.int32]:
@@ -462,7 +482,9 @@ class UniversalMesh:
 
         Vertices of positive edges are snapped onto Gamma, inside vertices within ``R_r`` of
         Gamma are relaxed inwards by at most ``alpha h``, triangles with all vertices
-        outside are dropped. No vertex is added; the kept triangles keep their connectivity.
+        outside are dropped; with ``relax`` the band's vertices are then moved to improve
+        the worst triangles. No vertex is added; the kept triangles keep their
+        connectivity. The facet tags (and the mesh's edges) are built when first used.
 
         Raises
         ------
@@ -483,17 +505,10 @@ class UniversalMesh:
         cmap = cell_emap.sub_topology_to_topology(
             np.arange(simc.size_local + simc.num_ghosts, dtype=np.int32), False
         )
-        stopo.create_connectivity(1, 2)
-        stopo.create_connectivity(1, 0)
-        facets = dmesh.exterior_facet_indices(stopo)
-        fv = stopo.connectivity(1, 0).array.reshape(-1, 2)[facets]
-        values = np.where(sm.on_positive_edge[vmap[fv]].all(axis=1), IMMERSED, OUTER)
-        tags = dmesh.meshtags(sub, 1, facets.astype(np.int32), values.astype(np.int32))
         timings = dict(sm.timings, mesh=time.perf_counter() - t3)
         moved = sm.moved
         return ConformingMesh(
             mesh=sub,
-            facet_tags=tags,
             background=self.background,
             boundary=boundary,
             cell_map=np.asarray(cmap, dtype=np.int32),
