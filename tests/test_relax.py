@@ -7,7 +7,7 @@ from mpi4py import MPI
 import numpy as np
 import pytest
 import ufl
-from conftest import needs_ranks
+from conftest import ROOT, needs_ranks
 from dolfinx import fem
 from random_domains import random_domain
 
@@ -15,6 +15,7 @@ import dolfinx_universal as du
 from dolfinx_universal._geometry import interior_angles
 from dolfinx_universal.curved import _cell_nodes
 from dolfinx_universal.relax import (
+    _star_quality,
     _Sub,
     coordinate_priority,
     movable_vertices,
@@ -70,6 +71,42 @@ def test_shape_quality_matches_reference():
     assert shape_quality(np.zeros(2), np.zeros(2), np.ones(2), 1.0) == -1.0
 
 
+def test_sweep_kernel_matches_shape_quality():
+    """The sweeps' kernel is shape_quality of counter-clockwise triangles, to rounding."""
+    rng = np.random.default_rng(5)
+    p, a, b = rng.normal(size=(3, 500, 2))
+    lab = np.linalg.norm(b - a, axis=1)
+    k = _star_quality(p[:, 0], p[:, 1], a[:, 0], a[:, 1], b[:, 0], b[:, 1], lab)
+    ref = shape_quality(p, a, b, np.ones(500))
+    assert (k < 0).sum() > 100 and (k > 0).sum() > 100  # both orientations occur
+    assert np.allclose(k, ref, rtol=1e-12, atol=1e-14)  # a few ulps apart, O(1) values
+
+
+def test_same_set_same_mesh():
+    """The propeller demo's threefold propeller at 0 and +-120 degrees is the same set given
+    through another parametrisation: on its graded background (quick sizes) the relaxed
+    meshes agree to rounding. Decisions on exact comparisons of near-tied candidate
+    qualities (argmax, strict gain) made them differ by 2.8e-3 (a step) at a few vertices."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "_propeller", ROOT / "demos" / "stokes_propeller.py"
+    )
+    assert spec is not None and spec.loader is not None
+    demo = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(demo)
+    comm = MPI.COMM_WORLD
+    md = du.MovingDomain(
+        demo.background_mesh(comm, *demo.sizes(True)[:2]), 2, map="I", local_size=True
+    )
+    x = []
+    for angle in (0.0, -120.0, 120.0):
+        md.update(du.Domain(None, [du.RigidMotion(demo.propeller, angle=np.radians(angle))]))
+        x.append(md.mesh.geometry.x.copy())
+    gap = max(float(np.abs(x[0] - xk).max()) for xk in x[1:])
+    assert comm.allreduce(gap, op=MPI.MAX) < 1e-12  # rounding of the projections: ~2e-15
+
+
 def test_priority_is_a_function_of_coordinates():
     x = np.random.default_rng(0).uniform(-1, 1, size=(5000, 2))
     p = coordinate_priority(x)
@@ -99,12 +136,13 @@ def test_colours_are_independent_sets():
 @pytest.mark.parametrize("n", [12, 24])
 def test_circle_targets(n, circle24):
     """Equilateral backgrounds, R_r = 3h, alpha = 3/4: the targets (min angle >= 40, max
-    <= 95, R/r <= 2.6) with a margin: measured 43.9/89.8/2.41 at h/R = 1/12 and
-    44.4/89.2/2.39 at 1/24, from 30.2/104.4/3.15 and 21.9/114.9/4.24 without relaxation."""
+    <= 95, R/r <= 2.6) with a margin: measured 42.5/92.0/2.48 at h/R = 1/12 and
+    42.2/92.0/2.48 at 1/24, from 30.2/104.4/3.15 and 21.9/114.9/4.24 without relaxation
+    (vertices stop at 5 % above the targets, ACTIVE_BELOW, hence the smaller margin)."""
     cms = circle24 if n == 24 else {r: _circle(MPI.COMM_WORLD, n, r) for r in (False, True)}
     off, on = (du.quality_report(cms[r]) for r in (False, True))
     assert on["n_inverted"] == 0 and on["min_area_ratio"] > 0
-    assert on["theta_min_deg"] >= 42.0 and on["theta_max_deg"] <= 92.0 and on["q_max"] <= 2.5
+    assert on["theta_min_deg"] >= 41.5 and on["theta_max_deg"] <= 93.0 and on["q_max"] <= 2.55
     assert on["theta_min_deg"] > off["theta_min_deg"] + 10
     assert on["n_cells"] == off["n_cells"] and on["n_positively_cut"] == off["n_positively_cut"]
 
@@ -112,7 +150,7 @@ def test_circle_targets(n, circle24):
 @pytest.mark.parametrize("seed", [0, 1, 2, 3, 4, 5, 6, 7])
 def test_random_domains(seed):
     """Random smooth domains (tests/random_domains.py) on equilateral backgrounds at
-    rho / h = 2: the minimum angle rises to >= 30 degrees (target 20; measured 37.7-43.4
+    rho / h = 2: the minimum angle rises to >= 30 degrees (target 20; measured 38.0-42.5
     over these seeds, from 19.4-29.0 without relaxation)."""
     d = random_domain(seed)
     h = float(min(d.h, d.min_radius_of_curvature / 2, d.min_gap / 8))
