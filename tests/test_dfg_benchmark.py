@@ -1,0 +1,146 @@
+"""The DFG 2D-1 demo: quick mode in serial and on two ranks, against the published values."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import numpy as np
+import pytest
+from conftest import ROOT, run_mpi
+
+ROW_KEYS = {
+    "level",
+    "n_cells",
+    "n_dofs",
+    "geometry_degree",
+    "c_D",
+    "c_L",
+    "delta_p",
+    "newton_iterations",
+    "time_s",
+}
+# Schäfer & Turek (1996), case 2D-1: the high-accuracy values of the FEATFLOW benchmark page.
+REFERENCE = {"c_D": 5.57953523384, "c_L": 0.010618948146, "delta_p": 0.11752016697}
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory) -> dict[int, dict]:
+    """``{nprocs: summary}`` of ``--quick`` runs on 1 and 2 ranks."""
+    out = {}
+    for nprocs in (1, 2):
+        folder = tmp_path_factory.mktemp(f"dfg{nprocs}")
+        run_mpi(nprocs, ["demos/dfg_benchmark.py", "--quick", "--out", str(folder)], timeout=300)
+        out[nprocs] = json.loads((folder / "summary.json").read_text())
+        for name in ("fields.png", "convergence.png"):
+            assert (folder / name).stat().st_size > 10_000, name
+    return out
+
+
+def test_summary_shape(runs):
+    summary = runs[1]
+    assert set(summary) == {"rows"}
+    rows = summary["rows"]
+    # quick mode: levels 0, 1, 2 with geometry degree 2, then the same with degree 3
+    assert [(r["level"], r["geometry_degree"]) for r in rows] == [
+        (lv, q) for q in (2, 3) for lv in range(3)
+    ]
+    for r in rows:
+        assert set(r) == ROW_KEYS
+        assert all(isinstance(r[k], int) for k in ("level", "n_cells", "n_dofs"))
+        assert all(isinstance(r[k], float) for k in ("c_D", "c_L", "delta_p", "time_s"))
+        assert r["time_s"] > 0
+    by_degree = {q: [r for r in rows if r["geometry_degree"] == q] for q in (2, 3)}
+    for sel in by_degree.values():
+        cells = [r["n_cells"] for r in sel]
+        assert cells == sorted(cells) and len(set(cells)) == 3  # refined at each level
+        # Taylor-Hood P2/P1: 2 (vertices + edges) + vertices, so between 4 and 5 per cell
+        assert all(4 * r["n_cells"] < r["n_dofs"] < 5 * r["n_cells"] for r in sel)
+    # the geometry degree changes the cell maps, not the mesh
+    assert [r["n_cells"] for r in by_degree[2]] == [r["n_cells"] for r in by_degree[3]]
+
+
+def test_newton_converges(runs):
+    # The demo raises unless SNES reports convergence (residual below 1e-11). From the zero
+    # initial guess at Re = 20 Newton's method converges quadratically in about five steps;
+    # more than eight would mean a wrong Jacobian (linear convergence).
+    for r in runs[1]["rows"]:
+        assert 2 <= r["newton_iterations"] <= 8, r
+
+
+def test_close_to_reference(runs):
+    # The quick levels are coarse (level 2: cells of R/8 at the cylinder, about 6e4 dofs),
+    # so the bounds are loose: ten times the errors seen there (c_D about 1e-5, c_L 6e-4 to
+    # 3e-3, delta_p 3e-3 to 4e-3 relative, depending on how the mesh is relaxed), yet
+    # tight enough to catch a wrong force formula, sign or scaling (c_L is a small
+    # difference of large forces: any error in the forms shows there first).
+    bounds = {"c_D": 1e-4, "c_L": 3e-2, "delta_p": 3e-2}
+    rows = runs[1]["rows"]
+    for r in rows:
+        if r["level"] == 2:
+            for key, bound in bounds.items():
+                assert abs(r[key] - REFERENCE[key]) < bound * REFERENCE[key], (key, r)
+    # and the lift converges: level 2 is better than level 0 by far
+    for q in (2, 3):
+        err = [abs(r["c_L"] - REFERENCE["c_L"]) for r in rows if r["geometry_degree"] == q]
+        assert err[2] < 0.1 * err[0]
+
+
+def test_serial_equals_parallel(runs):
+    # The same mesh on any number of ranks; Newton stops at a residual below 1e-11 after
+    # quadratic convergence, so only the rounding of the MUMPS factorisations (different
+    # orderings on 1 and 2 ranks) separates the runs: seen 1e-13 relative.
+    serial, parallel = runs[1]["rows"], runs[2]["rows"]
+    assert len(serial) == len(parallel)
+    for a, b in zip(serial, parallel):
+        for key in ("level", "n_cells", "n_dofs", "geometry_degree", "newton_iterations"):
+            assert a[key] == b[key]
+        for key in REFERENCE:
+            assert a[key] == pytest.approx(b[key], rel=1e-9, abs=1e-13), (key, a, b)
+
+
+@pytest.fixture(scope="module")
+def demo():
+    """The demo as a module (its functions, not its run)."""
+    sys.path.insert(0, str(ROOT / "demos"))
+    try:
+        import dfg_benchmark
+    finally:
+        sys.path.pop(0)
+    return dfg_benchmark
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("degree", [2, 3])
+def test_point_values(demo, degree):
+    """Point evaluation on the curved mesh, each point by one rank, also just off the mesh.
+
+    ``x + 2 y`` interpolated in the Lagrange space of the geometry's degree and variant is
+    the polynomial ``x(X) + 2 y(X)`` of the reference coordinates of each cell, so its
+    value at any point, even one extrapolated slightly outside a cell, is exact up to the
+    pull-back's tolerance. A point 1e-4 inside the cylinder lies between a curved edge and
+    its chord (the sagitta is about h^2 / 8R = 1.6e-3 here): in the convex hull of the
+    cell's nodes, which is what the collision test of curved cells checks."""
+    import basix.ufl
+    from dolfinx import fem
+
+    msh = demo.channel_mesh(0.08, 2.0, degree).mesh
+    cmap = msh.geometry.cmaps[0]
+    element = basix.ufl.element(
+        "Lagrange", msh.basix_cell(), degree, basix.LagrangeVariant(cmap.variant)
+    )
+    f = fem.Function(fem.functionspace(msh, element))
+    f.interpolate(lambda x: x[0] + 2 * x[1])
+    points = np.array(
+        [
+            [0.15, 0.2, 0.0],  # front of the cylinder: on the curved boundary
+            [0.25 + 1e-4, 0.2, 0.0],  # back of the cylinder, 1e-4 outside it: in the fluid
+            [0.15 + 1e-4, 0.2, 0.0],  # 1e-4 inside the cylinder: extrapolated
+            [1.0, 0.1, 0.0],
+            [0.6, 0.41, 0.0],  # on the wall
+        ]
+    )
+    values = demo.point_values(f, points)
+    np.testing.assert_allclose(values, points[:, 0] + 2 * points[:, 1], rtol=0, atol=1e-9)
+    with pytest.raises(RuntimeError, match="lie in no cell"):  # the cylinder's centre
+        demo.point_values(f, np.array([[0.2, 0.2, 0.0]]))
