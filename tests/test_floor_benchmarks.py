@@ -8,7 +8,7 @@ import pytest
 from conftest import ROOT, run_mpi
 
 SCRIPTS = {
-    "update_floor.py": 2,
+    "update_floor.py": 4,  # with and without the relaxation
     "conform_floor.py": 2,
     "curved_floor.py": 4,
 }
@@ -25,3 +25,5 @@ def test_floor_benchmark_quick(script):
         assert float(package) > 0 and float(floor) > 0, (name, out)
         assert abs(float(ratio) - float(package) / float(floor)) < 0.01 * float(ratio) + 0.01
     assert out.count("ratios: ") == 1, out
+    if script == "update_floor.py":
+        assert re.search(r"relaxation share .*equilateral: \d+ %, propeller graded: \d+ %", out)
