@@ -32,6 +32,7 @@ import basix
 import numpy as np
 from dolfinx import fem
 from dolfinx import mesh as dmesh
+from moving_update import propeller
 from scipy.spatial import cKDTree
 
 import dolfinx_universal as du
@@ -43,19 +44,7 @@ NEWTON_STEPS = 5
 
 def three_blades() -> du.PolarCurve:
     """The smooth three-blade body of ``moving_update.py``."""
-
-    def r(t):
-        return 0.2 + 0.2 * np.exp(-(np.sin(1.5 * t) ** 2) / 0.5)
-
-    def dr(t):
-        s, c = np.sin(1.5 * t), np.cos(1.5 * t)
-        return 0.2 * np.exp(-(s**2) / 0.5) * (-2 * s * c * 1.5 / 0.5)
-
-    def d2r(t):
-        e = 1e-5
-        return (dr(t + e) - dr(t - e)) / (2 * e)
-
-    return du.PolarCurve(r, dr, d2r)
+    return propeller()
 
 
 def propeller_demo():

@@ -56,6 +56,7 @@ def propeller() -> du.PolarCurve:
 
 
 def timed(fn, *args):
+    """``fn(*args)`` and its wall time, the maximum over the ranks."""
     comm.Barrier()
     t = time.perf_counter()
     out = fn(*args)

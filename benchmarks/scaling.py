@@ -31,7 +31,6 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 from mpi4py import MPI
@@ -40,22 +39,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from moving_update import propeller  # noqa: E402
+from moving_update import propeller, timed  # noqa: E402
 
 import dolfinx_universal as du  # noqa: E402
 from dolfinx_universal.moving import MovingDomain  # noqa: E402
 
 comm = MPI.COMM_WORLD
 PHASES = ("background", "prepare", "conform", "straight", "mesh", "curved", "update")
-
-
-def timed(fn, *args):
-    """``fn(*args)`` and its wall time, the maximum over the ranks."""
-    comm.Barrier()
-    t = time.perf_counter()
-    out = fn(*args)
-    comm.Barrier()
-    return out, comm.allreduce(time.perf_counter() - t, op=MPI.MAX)
 
 
 def run(target: float, repeats: int) -> dict:

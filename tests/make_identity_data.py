@@ -17,7 +17,7 @@ geometry nodes only where they differ from the straight (affine) nodes that
 
 from __future__ import annotations
 
-import importlib.util
+import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -32,37 +32,13 @@ import dolfinx_universal as du
 from dolfinx_universal.moving import MovingDomain
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from _floor import propeller_demo, three_blades  # noqa: E402  (the benchmarks' cases)
+
 DATA = ROOT / "tests" / "data"
 AFFINE_TOL = 1e-12
 """Nodes farther than this from their affine position are stored (curved or moved)."""
-
-
-def three_blades() -> du.PolarCurve:
-    """The smooth three-blade body of ``benchmarks/moving_update.py``."""
-
-    def r(t):
-        return 0.2 + 0.2 * np.exp(-(np.sin(1.5 * t) ** 2) / 0.5)
-
-    def dr(t):
-        s, c = np.sin(1.5 * t), np.cos(1.5 * t)
-        return 0.2 * np.exp(-(s**2) / 0.5) * (-2 * s * c * 1.5 / 0.5)
-
-    def d2r(t):
-        e = 1e-5
-        return (dr(t + e) - dr(t - e)) / (2 * e)
-
-    return du.PolarCurve(r, dr, d2r)
-
-
-def propeller_demo():
-    """The module ``demos/stokes_propeller.py`` (its propeller and graded background)."""
-    spec = importlib.util.spec_from_file_location(
-        "_stokes_propeller_demo", ROOT / "demos" / "stokes_propeller.py"
-    )
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def equilateral(comm: MPI.Comm, cells: float = 5e3) -> dmesh.Mesh:
