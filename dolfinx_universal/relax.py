@@ -69,6 +69,10 @@ MIN_STEP = 1e-2
 """A vertex stops once its step falls below this, in units of ``h``: its compass search has
 converged (a move of ``h / 100`` changes an angle by at most about half a degree)."""
 SWEEPS = 12
+GAMMA_EDGE_MAX = 1.0
+"""Longest edge of Gamma_h a slide may make, in units of the larger ``h`` of its two
+vertices (edges longer after ``M_h`` may keep, not exceed, their length): the geometric
+error of a curved edge grows like its length to the power q + 1."""
 GAMMA_SWEEPS = 6
 """Sweeps in which the vertices on Gamma slide (each costs a closest-point projection, the
 dearest step of a sweep; on the circle study sliding for all 12 sweeps gains 0-0.3 degrees
@@ -355,6 +359,16 @@ def relax_vertices(
     # degenerate triangles (no orientation to keep) rate -1 whatever the candidate.
     ea, eb = np.where(eo < 0, eb, ea), np.where(eo < 0, ea, eb)
     flat = np.flatnonzero(eo == 0)
+    # Edges between two vertices on Gamma (the edges of Gamma_h) may not grow beyond
+    # GAMMA_EDGE_MAX h (or their length after M_h, if longer): the same cap seen from both
+    # ends, so that it always holds and the ratings stay those of the true triangles.
+    pv = verts[ev]
+    capped = {}
+    for corner_of in (ea, eb):
+        both = np.flatnonzero(on_gamma[pv] & on_gamma[corner_of])
+        length = np.linalg.norm(y[pv[both]] - y[corner_of[both]], axis=1)
+        hmax_e = np.maximum(h[pv[both]], h[corner_of[both]])
+        capped[id(corner_of)] = (both, np.maximum(GAMMA_EDGE_MAX * hmax_e, length))
 
     def rate(E: Int, px: Float, py: Float) -> Float:
         """Qualities of the entries ``E`` with their vertex at ``(px, py)`` ``(len(E), ...)``."""
@@ -366,6 +380,20 @@ def relax_vertices(
         )
         if len(flat):
             q[np.isin(E, flat)] = -1.0
+        for corner_of in (ea, eb):
+            both, cap = capped[id(corner_of)]
+            if not len(both):
+                continue
+            at = np.searchsorted(both, E)
+            hit = (at < len(both)) & (both[np.minimum(at, len(both) - 1)] == E)
+            if hit.any():
+                i, k = np.flatnonzero(hit), at[hit]
+                c = y[corner_of[E[i]]]
+                d = np.hypot(
+                    px[i] - c[(slice(None),) + (None,) * (px.ndim - 1) + (0,)],
+                    py[i] - c[(slice(None),) + (None,) * (px.ndim - 1) + (1,)],
+                )
+                q[i] = np.where(d > cap[k][(slice(None),) + (None,) * (px.ndim - 1)], -1.0, q[i])
         return q
 
     bounds = np.searchsorted(colour[ev], np.arange(ncol + 1))
