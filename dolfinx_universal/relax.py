@@ -366,9 +366,11 @@ def relax_vertices(
     capped = {}
     for corner_of in (ea, eb):
         both = np.flatnonzero(on_gamma[pv] & on_gamma[corner_of])
-        length = np.linalg.norm(y[pv[both]] - y[corner_of[both]], axis=1)
+        d = y[pv[both]] - y[corner_of[both]]
+        length = np.hypot(d[:, 0], d[:, 1])  # as in rate(): the current position passes
         hmax_e = np.maximum(h[pv[both]], h[corner_of[both]])
-        capped[id(corner_of)] = (both, np.maximum(GAMMA_EDGE_MAX * hmax_e, length))
+        cap = np.maximum(GAMMA_EDGE_MAX * hmax_e, length) * (1.0 + TIE)
+        capped[id(corner_of)] = (both, cap)
 
     def rate(E: Int, px: Float, py: Float) -> Float:
         """Qualities of the entries ``E`` with their vertex at ``(px, py)`` ``(len(E), ...)``."""
