@@ -8,15 +8,12 @@ from mpi4py import MPI
 
 import numpy as np
 import numpy.typing as npt
-from dolfinx import geometry as dgeometry
 
 from ._geometry import Bool, Float, Int, cell_diameters, interior_angles, signed_areas
 from .classify import conditioning_angle, proximal_vertex
 from .validation import MeshingError, Problem, collective_call, where
 
 if TYPE_CHECKING:
-    from dolfinx import mesh as dmesh
-
     from .boundaries import Boundary
     from .pipeline import PositiveEdges
     from .sizing import CurveSamples
@@ -231,45 +228,30 @@ class CellLocator:
 
 
 def containment_problems(
-    background: dmesh.Mesh,
-    boundary: Boundary,
-    cells: npt.NDArray[np.int32],
-    comm: MPI.Comm,
-    locator: CellLocator | None = None,
+    locator: CellLocator, boundary: Boundary, cells: npt.NDArray[np.int32], comm: MPI.Comm
 ) -> list[Problem]:
     """Points of Gamma that lie in none of ``cells`` of the background (collective).
 
     Parameters
     ----------
-    background
-        The background mesh.
+    locator
+        A :class:`CellLocator` of all local background cells, built once and reused (the
+        search is restricted to ``cells``).
     boundary
         The domain (sampled).
     cells
         Background cells to search (those near Gamma) ``(m,)``.
     comm
         Communicator of the mesh.
-    locator
-        A :class:`CellLocator` of all local background cells, built once and reused (the
-        search is restricted to ``cells``); without it, a bounding-box tree of ``cells``
-        is built for this call.
 
     Returns
     -------
     The problem on rank 0 when samples of Gamma are in no cell of any rank, else empty.
     """
     pts = collective_call(comm, "sampling the boundary", boundary.sample, 512)
-    if locator is not None:
-        allowed = np.zeros(len(locator.cells), dtype=bool)
-        allowed[cells] = True
-        found = locator.contains(np.asarray(pts, dtype=np.float64), allowed).astype(np.int32)
-    else:
-        pts3 = np.zeros((len(pts), 3))
-        pts3[:, :2] = pts
-        tree = dgeometry.bb_tree(background, 2, entities=cells.astype(np.int32))
-        cand = dgeometry.compute_collisions_points(tree, pts3)
-        hits = dgeometry.compute_colliding_cells(background, cand, pts3)
-        found = (np.diff(hits.offsets) > 0).astype(np.int32)
+    allowed = np.zeros(len(locator.cells), dtype=bool)
+    allowed[cells] = True
+    found = locator.contains(np.asarray(pts, dtype=np.float64), allowed).astype(np.int32)
     found = comm.allreduce(found, op=MPI.SUM) if comm.size > 1 else found
     missing = pts[found == 0]
     if len(missing) and comm.rank == 0:

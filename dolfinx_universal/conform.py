@@ -413,9 +413,7 @@ class UniversalMesh:
         # Containment first: a domain leaving the background also breaks Gamma_h there, and
         # "refine" would point the wrong way.
         cells = near_cells.astype(np.int32)
-        raise_collective(
-            comm, containment_problems(self.background, boundary, cells, comm, self._locator)
-        )
+        raise_collective(comm, containment_problems(self._locator, boundary, cells, comm))
         problems, theta = classification_problems(
             xp, s, phi, pe, self._c2v, self._c2f, self._f2c_offsets, self._f2c, imv.size_local
         )
