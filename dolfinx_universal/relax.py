@@ -363,14 +363,15 @@ def relax_vertices(
     # GAMMA_EDGE_MAX h (or their length after M_h, if longer): the same cap seen from both
     # ends, so that it always holds and the ratings stay those of the true triangles.
     pv = verts[ev]
-    capped = {}
+    caps = []  # per corner (a, b): the cap of each entry's edge p-corner, inf if none
     for corner_of in (ea, eb):
+        cap = np.full(len(ev), np.inf)
         both = np.flatnonzero(on_gamma[pv] & on_gamma[corner_of])
         d = y[pv[both]] - y[corner_of[both]]
         length = np.hypot(d[:, 0], d[:, 1])  # as in rate(): the current position passes
         hmax_e = np.maximum(h[pv[both]], h[corner_of[both]])
-        cap = np.maximum(GAMMA_EDGE_MAX * hmax_e, length) * (1.0 + TIE)
-        capped[id(corner_of)] = (both, cap)
+        cap[both] = np.maximum(GAMMA_EDGE_MAX * hmax_e, length) * (1.0 + TIE)
+        caps.append((corner_of, cap))
 
     def rate(E: Int, px: Float, py: Float) -> Float:
         """Qualities of the entries ``E`` with their vertex at ``(px, py)`` ``(len(E), ...)``."""
@@ -382,20 +383,12 @@ def relax_vertices(
         )
         if len(flat):
             q[np.isin(E, flat)] = -1.0
-        for corner_of in (ea, eb):
-            both, cap = capped[id(corner_of)]
-            if not len(both):
-                continue
-            at = np.searchsorted(both, E)
-            hit = (at < len(both)) & (both[np.minimum(at, len(both) - 1)] == E)
-            if hit.any():
-                i, k = np.flatnonzero(hit), at[hit]
+        for corner_of, cap in caps:
+            i = np.flatnonzero(cap[E] < np.inf)
+            if len(i):
                 c = y[corner_of[E[i]]]
-                d = np.hypot(
-                    px[i] - c[(slice(None),) + (None,) * (px.ndim - 1) + (0,)],
-                    py[i] - c[(slice(None),) + (None,) * (px.ndim - 1) + (1,)],
-                )
-                q[i] = np.where(d > cap[k][(slice(None),) + (None,) * (px.ndim - 1)], -1.0, q[i])
+                d = np.hypot(px[i] - c[col + (0,)], py[i] - c[col + (1,)])
+                q[i] = np.where(d > cap[E[i]][col], -1.0, q[i])
         return q
 
     bounds = np.searchsorted(colour[ev], np.arange(ncol + 1))
