@@ -375,7 +375,7 @@ class UniversalMesh:
         if self.relax:
             t_relax = time.perf_counter()
             y, xp, moved = relax_band(
-                comm, imv, boundary.closest_point, boundary.normal, x, xp, y, s, phi, band,
+                comm, imv, boundary._closest_normal, x, xp, y, s, phi, band,
                 pe.on_edge, pe.in_kept, c2v[pe.near_kept], self._outer_vertices, normal, self.h,
             )[:3]  # fmt: skip
             timings["relax"] = time.perf_counter() - t_relax

@@ -273,8 +273,7 @@ def vertex_colours(sub: _Sub, cells: Int, priority: Float) -> Int:
 def relax_vertices(
     comm: MPI.Comm,
     imv: IndexMap,
-    closest_point: Callable[[Float], Float],
-    normal_at: Callable[[Float], Float],
+    closest_normal: Callable[[Float], tuple[Float, Float]],
     x0: Float,
     xp: Float,
     y: Float,
@@ -302,9 +301,9 @@ def relax_vertices(
         Communicator of the mesh.
     imv
         Vertex index map.
-    closest_point, normal_at
-        Projection onto Gamma and the unit outward normal at points of Gamma (for the
-        vertices on Gamma).
+    closest_normal
+        Projection onto Gamma with the unit outward normal there,
+        ``(n, 2) -> ((n, 2), (n, 2))`` (for the vertices on Gamma).
     x0
         Original background positions ``(num_vertices, 2)`` (priorities, moved flags).
     xp
@@ -324,8 +323,9 @@ def relax_vertices(
     phi
         Signed distances of the background positions ``xp`` ``(num_vertices,)`` (rows of
         the vertices on Gamma are read): a vertex that slides to ``y`` gets the background
-        position ``y + phi N(y)``, which projects onto ``y`` and lies as far from Gamma as
-        before (so the exactly conforming map ``G_h`` still projects a background edge).
+        position ``y + phi N(y)`` (``N(y)`` from the projection that found ``y``), which
+        projects onto ``y`` and lies as far from Gamma as before (so the exactly conforming
+        map ``G_h`` still projects a background edge).
     h
         Mesh size at each vertex ``(num_vertices,)`` (scales the steps).
     sweeps
@@ -397,6 +397,7 @@ def relax_vertices(
     ]  # each colour's entries, and its vertices (with or without entries on this rank)
     gamma = np.flatnonzero(on_gamma[verts])
     tangent = normal[verts[gamma]] @ np.array([[0.0, 1.0], [-1.0, 0.0]])
+    nrm = normal.copy()  # normals at the current positions of the vertices on Gamma
     step = INITIAL_STEP * h[verts]
     hmax = MAX_STEP * h[verts]
     hmin = MIN_STEP * h[verts]
@@ -448,13 +449,16 @@ def relax_vertices(
         # repeat their current position).
         ga = np.flatnonzero(active[gamma])
         g = gamma[ga]
+        cand_n = None  # the normals at the candidates of the vertices on Gamma
         if comm.allreduce(len(g) > 0, op=MPI.LOR):  # (a projection costs ~1 ms even if small)
             slide = step[g, None, None] * tangential[None] * tangent[ga, None, :]
             pg = (y[verts[g]][:, None, :] + slide).reshape(-1, 2)
+            pc, pn = collective_call(comm, "closest-point projection", closest_normal, pg)
             cand[row[g]] = y[verts[g]][:, None, :]
-            cand[row[g], 1 : 1 + len(tangential)] = np.asarray(
-                collective_call(comm, "closest-point projection", closest_point, pg)
-            ).reshape(len(g), len(tangential), 2)
+            cand[row[g], 1 : 1 + len(tangential)] = np.reshape(pc, (len(g), len(tangential), 2))
+            cand_n = np.empty_like(cand)
+            cand_n[row[g]] = nrm[verts[g]][:, None, :]
+            cand_n[row[g], 1 : 1 + len(tangential)] = np.reshape(pn, (len(g), len(tangential), 2))
         moves = 0
         for k in np.flatnonzero(live):
             e, S = groups[k]
@@ -477,6 +481,9 @@ def relax_vertices(
             win, bw = S[gain], best[gain]
             y[verts[win]] = cand[row[win], bw]
             changed[verts[win]] = True
+            on = is_gamma[win] == 1
+            if cand_n is not None and on.any():
+                nrm[verts[win[on]]] = cand_n[row[win[on]], bw[on]]
             # Grow the step after a full step, shrink it where nothing helped.
             factor = np.full(len(S), 0.4)
             factor[gain] = np.where(full_step[is_gamma[win], bw], 1.5, 0.75)
@@ -490,8 +497,7 @@ def relax_vertices(
             break
     slid = verts[gamma]
     slid = slid[np.any(y[slid] != y0[slid], axis=1)]
-    n_new = np.asarray(collective_call(comm, "the normal", normal_at, y[slid]), dtype=float)
-    xp[slid] = y[slid] + phi[slid, None] * n_new.reshape(-1, 2)
+    xp[slid] = y[slid] + phi[slid, None] * nrm[slid]
     moved = np.any(y != x0, axis=1)
     return Relaxation(y, xp, moved, num_moves, done)
 
@@ -534,8 +540,7 @@ def movable_vertices(
 def relax_band(
     comm: MPI.Comm,
     imv: IndexMap,
-    closest_point: Callable[[Float], Float],
-    normal_at: Callable[[Float], Float],
+    closest_normal: Callable[[Float], tuple[Float, Float]],
     x0: Float,
     xp: Float,
     y: Float,
@@ -560,8 +565,7 @@ def relax_band(
     return relax_vertices(
         comm,
         imv,
-        closest_point,
-        normal_at,
+        closest_normal,
         x0,
         xp,
         y,

@@ -298,7 +298,7 @@ def test_relax_vertices_never_lowers_a_star():
     history = [worst(y)]
     for sweeps in (1, 3, 6):
         r = relax_vertices(
-            MPI.COMM_SELF, imv, lambda p: p, np.zeros_like, x0, x0, y, cells, inner,
+            MPI.COMM_SELF, imv, lambda p: (p, np.zeros_like(p)), x0, x0, y, cells, inner,
             np.zeros(len(y), dtype=bool), np.zeros_like(y), np.zeros(len(y)),
             np.full(len(y), 0.1), sweeps=sweeps,
         )  # fmt: skip
