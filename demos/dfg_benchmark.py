@@ -94,12 +94,13 @@ from petsc4py import PETSc
 import basix.ufl
 import numpy as np
 import ufl
-from dolfinx import fem, geometry
+from dolfinx import fem
 from dolfinx import mesh as dmesh
 from dolfinx.fem.petsc import NonlinearProblem
 
 import dolfinx_universal as du
 from dolfinx_universal.demo_support import demo_options, log
+from dolfinx_universal.demo_support import point_values as demo_point_values
 from dolfinx_universal.plotting import plot_function, save
 
 comm = MPI.COMM_WORLD
@@ -162,34 +163,17 @@ def inflow(x: np.ndarray) -> np.ndarray:
 
 
 def point_values(f: fem.Function, points: np.ndarray) -> np.ndarray:
-    """``f`` at ``points (n, 3)``, each point taken by exactly one rank (collective).
-
-    The lowest rank with an owned cell containing the point evaluates it; the result is
-    the same on every rank. Curved cells are tested against the convex hull of their
+    """``f`` at ``points (n, 3)``, each point taken by exactly one rank (collective; see
+    :func:`~dolfinx_universal.demo_support.point_values`); the result is the same on every
+    rank. Curved cells are tested against the convex hull of their
     nodes, which at a convex body covers the strip between each curved edge and its chord:
     a point on the exact circle is found even where the discrete boundary misses it by the
     interpolation error, and ``f`` is extrapolated there (a tiny distance). Raises on every
     rank if a point lies in no cell."""
-    msh = f.function_space.mesh
-    owned = np.arange(msh.topology.index_map(2).size_local, dtype=np.int32)
-    tree = geometry.bb_tree(msh, 2, entities=owned)
-    colliding = geometry.compute_colliding_cells(
-        msh, geometry.compute_collisions_points(tree, points), points
-    )
-    found = np.diff(colliding.offsets) > 0
-    mine = np.where(found, comm.rank, comm.size)
-    taker = np.empty_like(mine)
-    comm.Allreduce(mine, taker, op=MPI.MIN)
-    if (taker == comm.size).any():
-        raise RuntimeError(f"points {points[taker == comm.size].tolist()} lie in no cell")
-    values = np.zeros(len(points))
-    take = np.flatnonzero(taker == comm.rank)
-    if len(take):
-        cells = colliding.array[colliding.offsets[take]]
-        values[take] = f.eval(points[take], cells).reshape(len(take), -1)[:, 0]
-    out = np.empty_like(values)
-    comm.Allreduce(values, out, op=MPI.SUM)
-    return out
+    values = demo_point_values([f], points)[0][:, 0]
+    if np.isnan(values).any():
+        raise RuntimeError(f"points {points[np.isnan(values)].tolist()} lie in no cell")
+    return values
 
 
 def solve_level(level: int, degree: int, h: float, size_factor: float) -> tuple[dict, fem.Function]:

@@ -101,11 +101,11 @@ from mpi4py import MPI
 import basix.ufl
 import numpy as np
 import ufl
-from dolfinx import fem, geometry
+from dolfinx import fem
 
 import dolfinx_universal as du
 from dolfinx_universal.constraints import SlipConstraint
-from dolfinx_universal.demo_support import demo_options, log, write_summary
+from dolfinx_universal.demo_support import demo_options, log, point_values, write_summary
 from dolfinx_universal.plotting import save
 
 R, tau, lam, mu, p = 3.142, 3.142 / 4, 1.0, 1.0, 1e-3
@@ -155,13 +155,7 @@ def solve_plate(curved: du.CurvedMesh, tangent: str) -> tuple[fem.Function, Slip
 
 def value_at_origin(u: fem.Function) -> float:
     """``u(0, 0)`` of a scalar function, from whichever rank holds the point (collective)."""
-    msh = u.function_space.mesh
-    point = np.zeros((1, 3))
-    tree = geometry.bb_tree(msh, msh.topology.dim)
-    candidates = geometry.compute_collisions_points(tree, point)
-    cells = geometry.compute_colliding_cells(msh, candidates, point).links(0)
-    local = float(u.eval(point, cells[:1])[0]) if len(cells) else None
-    return next(v for v in msh.comm.allgather(local) if v is not None)
+    return float(point_values([u], np.zeros((1, 3)))[0][0, 0])
 
 
 # -

@@ -112,11 +112,10 @@ from collections.abc import Sequence
 from mpi4py import MPI
 
 import numpy as np
-from dolfinx import geometry
 from dolfinx import mesh as dmesh
 
 import dolfinx_universal as du
-from dolfinx_universal.demo_support import demo_options, log, write_summary
+from dolfinx_universal.demo_support import demo_options, log, point_values, write_summary
 from dolfinx_universal.graded import graded_mesh
 from dolfinx_universal.moving import MovingDomain
 from dolfinx_universal.moving_problem import MovingStokes
@@ -252,10 +251,9 @@ class DiscInChannel:
         return F_surf, F_var, report, seconds
 
     def snapshot(self, points: np.ndarray) -> dict:
-        """The fluid cells (nodes and kinds: 1 fluid, 2 with an edge on Gamma_h) and the
-        velocity at ``points (n, 3)`` (NaN inside the disc), gathered to rank 0."""
+        """The fluid cells (nodes and kinds: 1 fluid, 2 with an edge on Gamma_h; gathered to
+        rank 0) and the velocity at ``points (n, 3)`` (NaN inside the disc)."""
         md, msh = self.md, self.mesh
-        nco = msh.topology.index_map(2).size_local
         kind = md.active_tags.values.astype(np.int8)
         f2c = msh.topology.connectivity(1, 2)
         touching = np.concatenate(
@@ -263,23 +261,11 @@ class DiscInChannel:
         )
         kind[touching[kind[touching] == 1]] = 2
         nodes, kinds = gather_cells(msh, kind)
-        # Evaluate u_h in the owned fluid cells only; each point is found on one rank.
-        cells = md.active_cells[md.active_cells < nco]
-        tree = geometry.bb_tree(msh, 2, entities=cells)
-        candidates = geometry.compute_collisions_points(tree, points)
-        colliding = geometry.compute_colliding_cells(msh, candidates, points)
-        found = np.flatnonzero(np.diff(colliding.offsets) > 0)
-        values = np.full((len(points), 2), np.nan)
-        if len(found):
-            u_h = self.stokes.wh.sub(0).collapse()
-            values[found] = u_h.eval(points[found], colliding.array[colliding.offsets[found]])
-        parts = comm.gather(values, root=0)
-        if comm.rank == 0:
-            values = parts[0]
-            for part in parts[1:]:
-                values = np.where(np.isnan(values), part, values)
+        # Evaluate u_h in the fluid cells only; each point is found on one rank.
+        u_h = self.stokes.wh.sub(0).collapse()
+        values = point_values([u_h], points, md.active_cells)[0]
         # |u| on the curved fluid cells (meets the curved disc with no gap)
-        speed = field_triangulation(self.stokes.wh.sub(0).collapse(), active=self.md.active)
+        speed = field_triangulation(u_h, active=self.md.active)
         return {"nodes": nodes, "kinds": kinds, "velocity": values, "speed": speed}
 
 

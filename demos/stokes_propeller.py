@@ -84,10 +84,10 @@ from mpi4py import MPI
 
 import numpy as np
 import ufl
-from dolfinx import fem, geometry, io
+from dolfinx import fem, io
 
 import dolfinx_universal as du
-from dolfinx_universal.demo_support import demo_options, log, write_summary
+from dolfinx_universal.demo_support import demo_options, log, point_values, write_summary
 from dolfinx_universal.graded import graded_mesh
 from dolfinx_universal.moving import MovingDomain
 from dolfinx_universal.moving_problem import MovingStokes
@@ -203,30 +203,8 @@ def sample(
     md: MovingDomain, functions: Sequence[fem.Function], points: np.ndarray
 ) -> list[np.ndarray | None]:
     """Values ``(len(points), bs)`` at ``points`` on rank 0, NaN outside the fluid."""
-    msh, comm = md.mesh, md.comm
-    nco = msh.topology.index_map(2).size_local
-    cells = md.active_cells[md.active_cells < nco]
-    tree = geometry.bb_tree(msh, 2, entities=cells)
-    candidates = geometry.compute_collisions_points(tree, points)
-    colliding = geometry.compute_colliding_cells(msh, candidates, points)
-    found = np.flatnonzero(np.diff(colliding.offsets) > 0)
-    first = colliding.array[colliding.offsets[found]]
-    out = []
-    for f in functions:
-        bs = f.function_space.dofmap.index_map_bs
-        values = np.full((len(points), bs), np.nan)
-        if len(found):
-            values[found] = f.eval(points[found], first)
-        parts = comm.gather(values, root=0)
-        if comm.rank == 0:
-            merged = parts[0]
-            for part in parts[1:]:
-                fill = np.isnan(merged[:, 0]) & ~np.isnan(part[:, 0])
-                merged[fill] = part[fill]
-            out.append(merged)
-        else:
-            out.append(None)
-    return out
+    values = point_values(functions, points, md.active_cells)
+    return values if md.comm.rank == 0 else [None] * len(values)
 
 
 def cell_kinds(md: MovingDomain) -> np.ndarray:

@@ -7,11 +7,17 @@ import json
 import platform
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from mpi4py import MPI
 
-__all__ = ["demo_options", "log", "versions", "write_summary"]
+import numpy as np
+import numpy.typing as npt
+
+if TYPE_CHECKING:
+    from dolfinx import fem
+
+__all__ = ["demo_options", "log", "point_values", "versions", "write_summary"]
 
 
 def demo_options(
@@ -99,3 +105,45 @@ def write_summary(
     if error is not None:
         raise OSError(error)
     return path
+
+
+def point_values(
+    functions: Sequence[fem.Function], points: npt.ArrayLike, cells: npt.ArrayLike | None = None
+) -> list[npt.NDArray[np.float64]]:
+    """Values of ``functions`` (on one mesh) at ``points (n, 3)``, the same on every rank
+    (collective).
+
+    Each point is evaluated by the lowest rank with a cell containing it among its owned
+    ``cells`` (default: all owned cells), so each is counted once; points in no such cell
+    of any rank are NaN.
+
+    Returns
+    -------
+    For each function, ``(n, bs)`` values (``bs`` its value size).
+    """
+    from dolfinx import geometry
+
+    msh = functions[0].function_space.mesh
+    comm = msh.comm
+    points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    owned = msh.topology.index_map(2).size_local
+    cells = np.arange(owned) if cells is None else np.asarray(cells)
+    tree = geometry.bb_tree(msh, msh.topology.dim, entities=cells[cells < owned].astype(np.int32))
+    colliding = geometry.compute_colliding_cells(
+        msh, geometry.compute_collisions_points(tree, points), points
+    )
+    found = np.diff(colliding.offsets) > 0
+    taker = np.empty(len(points), dtype=np.int64)
+    comm.Allreduce(np.where(found, comm.rank, comm.size).astype(np.int64), taker, op=MPI.MIN)
+    take = np.flatnonzero(taker == comm.rank)
+    first = colliding.array[colliding.offsets[take]]
+    out = []
+    for f in functions:
+        values = np.zeros((len(points), int(np.prod(f.function_space.value_shape))))
+        if len(take):
+            values[take] = np.reshape(f.eval(points[take], first), (len(take), -1))
+        total = np.empty_like(values)
+        comm.Allreduce(values, total, op=MPI.SUM)
+        total[taker == comm.size] = np.nan
+        out.append(total)
+    return out
