@@ -27,7 +27,7 @@ from .checks import (
 )
 from .classify import positively_cut
 from .pipeline import band_cells, classify_near, gamma_h, map_band, perturb, project_band
-from .relax import relax_band
+from .relax import movable_vertices, relax_vertices
 from .validation import MeshingError, Problem, collective_call, raise_collective
 
 if TYPE_CHECKING:
@@ -374,9 +374,10 @@ class UniversalMesh:
         )
         if self.relax:
             t_relax = time.perf_counter()
-            y, xp, moved = relax_band(
-                comm, imv, boundary._closest_normal, x, xp, y, s, phi, band,
-                pe.on_edge, pe.in_kept, c2v[pe.near_kept], self._outer_vertices, normal, self.h,
+            movable = movable_vertices(imv, s, band, pe.on_edge, pe.in_kept, self._outer_vertices)
+            y, xp, moved = relax_vertices(
+                comm, imv, boundary._closest_normal, x, xp, y, c2v[pe.near_kept], movable,
+                pe.on_edge, normal, phi, self.h,
             )[:3]  # fmt: skip
             timings["relax"] = time.perf_counter() - t_relax
         angle_range = self._check_quality(y, moved, c2v[pe.near_kept])

@@ -50,7 +50,6 @@ __all__ = [
     "coordinate_priority",
     "shape_quality",
     "movable_vertices",
-    "relax_band",
     "relax_vertices",
     "vertex_colours",
 ]
@@ -535,45 +534,3 @@ def movable_vertices(
     flag[(inside_band | on_gamma) & in_kept] = 1.0
     flag[fixed] = 0.0
     return vertex_reduce(imv, flag, "min") > 0
-
-
-def relax_band(
-    comm: MPI.Comm,
-    imv: IndexMap,
-    closest_normal: Callable[[Float], tuple[Float, Float]],
-    x0: Float,
-    xp: Float,
-    y: Float,
-    sign: Float,
-    phi: Float,
-    band: Int,
-    on_gamma: Bool,
-    in_kept: Bool,
-    cells: Int,
-    fixed: Int,
-    normal: Float,
-    h: Float,
-    *,
-    sweeps: int = SWEEPS,
-) -> Relaxation:
-    """:func:`relax_vertices` on the band's inside vertices and the vertices on Gamma.
-
-    Parameters as in :func:`movable_vertices` and :func:`relax_vertices` (``cells``: the
-    owned kept triangles at the band). Collective.
-    """
-    movable = movable_vertices(imv, sign, band, on_gamma, in_kept, fixed)
-    return relax_vertices(
-        comm,
-        imv,
-        closest_normal,
-        x0,
-        xp,
-        y,
-        cells,
-        movable,
-        on_gamma,
-        normal,
-        phi,
-        h,
-        sweeps=sweeps,
-    )
