@@ -9,13 +9,15 @@ from mpi4py import MPI
 import numpy as np
 import numpy.typing as npt
 
-from ._geometry import Bool, Float, Int, cell_diameters, interior_angles, signed_areas
+from ._geometry import Bool, Float, Int
 from .classify import conditioning_angle, proximal_vertex
+from .dimensions import cell_kernels
+from .gamma_tet import conditioning_dihedral
 from .validation import MeshingError, Problem, collective_call, where
 
 if TYPE_CHECKING:
     from .boundaries import Boundary
-    from .pipeline import PositiveEdges
+    from .pipeline import PositiveFacets
     from .sizing import CurveSamples
 
 __all__ = [
@@ -58,12 +60,13 @@ def classification_problems(
     xp: Float,
     s: Float,
     phi: Float,
-    edges: PositiveEdges,
+    edges: PositiveFacets,
     c2v: Int,
     c2f: Int,
     f2c_offsets: Int,
     f2c: Int,
     num_owned_vertices: int,
+    x0: Float | None = None,
 ) -> tuple[list[Problem], float]:
     """Local problems with the classification: the conditions of the method.
 
@@ -80,6 +83,9 @@ def classification_problems(
         Facet -> cell adjacency list (offsets ``(num_facets + 1,)`` and cells).
     num_owned_vertices
         Number of owned vertices (the first ones).
+    x0
+        Unperturbed background positions (tetrahedra: the conditioning test is a property
+        of the background cells); ``xp`` if None.
 
     Returns
     -------
@@ -88,25 +94,37 @@ def classification_problems(
     theta_max
         The largest conditioning angle (radians, 0 without positively cut cells).
     """
-    pc_owned, u, v, w = edges.cells, edges.u, edges.v, edges.w
+    pc_owned, w = edges.cells, edges.w
+    kernels = cell_kernels(c2v.shape[1] - 1)
+    tdim, cell, facet = kernels.tdim, kernels.name, kernels.facet_name
     problems = []
     theta_max = 0.0
     if len(pc_owned):
-        theta = conditioning_angle(xp, phi, u, v, w)
-        theta_max = float(theta.max())
-        bad = theta >= np.pi / 2 - 1e-12
-        if bad.any():
-            p = xp[proximal_vertex(xp, phi, u[bad], v[bad], w[bad])]
-            problems.append(
-                Problem(
-                    "conditioning angle of 90 degrees or more in {count} positively cut "
-                    "triangles near {where}: use a background mesh that is acute near the "
-                    "boundary (e.g. equilateral or graded_mesh)",
-                    p,
-                    int(bad.sum()),
-                )
+        if tdim == 2:
+            u, v = edges.u, edges.v
+            theta = conditioning_angle(xp, phi, u, v, w)
+            bad = theta >= np.pi / 2 - 1e-12
+            places = xp[proximal_vertex(xp, phi, u[bad], v[bad], w[bad])] if bad.any() else xp[:0]
+            text = (
+                "conditioning angle of 90 degrees or more in {count} positively cut "
+                "triangles near {where}: use a background mesh that is acute near the "
+                "boundary (e.g. equilateral or graded_mesh)"
             )
-        # The positive edge is the facet opposite the inside vertex.
+        else:
+            # a property of the background cells: their unperturbed positions
+            theta = conditioning_dihedral(x0 if x0 is not None else xp, edges.facets, w)
+            bad = theta > np.pi / 2 + 1e-9  # right angles (BCC) allowed up to rounding
+            places = xp[edges.facets[bad]].mean(axis=1)
+            text = (
+                "dihedral angle above 90 degrees at the positive face of {count} positively "
+                "cut tetrahedra near {where}: use a background mesh that is non-obtuse near "
+                "the boundary (e.g. a15_mesh or bcc_mesh)"
+            )
+        theta_max = float(theta.max())
+        if bad.any():
+            problems.append(Problem(text, places, int(bad.sum())))
+        # The positive facet is the facet opposite the inside vertex.
+        centre = xp[edges.facets].mean(axis=1)
         k = np.argmin(s[c2v[pc_owned]], axis=1)
         f = c2f[pc_owned, k]
         off = f2c_offsets
@@ -117,7 +135,7 @@ def classification_problems(
                 Problem(
                     "the domain reaches the boundary of the background mesh near {where}: "
                     "enlarge the background",
-                    0.5 * (xp[u[lone]] + xp[v[lone]]),
+                    centre[lone],
                     int(lone.sum()),
                     refinable=False,
                 )
@@ -129,16 +147,18 @@ def classification_problems(
         if len(shared):
             problems.append(
                 Problem(
-                    "Gamma crosses both triangles beside the positive edge near {where} (a "
+                    f"Gamma crosses both {cell}s beside the positive {facet} near {{where}} (a "
                     "thin part of the domain or of its exterior): the background is too "
                     "coarse there, refine near it",
-                    0.5 * (xp[u[shared]] + xp[v[shared]]),
+                    centre[shared],
                     len(shared),
                 )
             )
     nvo = num_owned_vertices
     count, in_kept = edges.count[:nvo], edges.in_kept[:nvo]
-    chain = (count > 0) & (count != 2)
+    # Triangles: two positive edges at every vertex of Gamma_h (closed simple curves); the
+    # surface of positive faces (tetrahedra) is checked by gamma_tet.surface_topology.
+    chain = (count > 0) & (count != 2) if tdim == 2 else np.zeros(nvo, dtype=bool)
     lost = in_kept & (s[:nvo] > 0) & (count == 0)
     for bad, text in (
         (
@@ -149,8 +169,8 @@ def classification_problems(
         ),
         (
             lost,
-            "vertices outside the domain at {where} belong to kept triangles but to no "
-            "positive edge, so they would not be snapped: Gamma is under-resolved there; "
+            f"vertices outside the domain at {{where}} belong to kept {cell}s but to no "
+            f"positive {facet}, so they would not be snapped: Gamma is under-resolved there; "
             "refine the background near them",
         ),
     ):
@@ -160,52 +180,60 @@ def classification_problems(
 
 
 class CellLocator:
-    """Which triangles contain given points: a uniform grid of bins over the triangles'
-    bounding boxes, built once for a fixed mesh (process-local, owned and ghost cells).
+    """Which cells (triangles or tetrahedra) contain given points: bins about a cell wide
+    over the cells' bounding boxes, hashed sparsely (only the bins that cells touch are
+    stored), built once for a fixed mesh (process-local, owned and ghost cells).
 
     Parameters
     ----------
     x
-        Vertex coordinates ``(num_vertices, 2)``.
+        Vertex coordinates ``(num_vertices, d)``.
     cells
-        Triangles as vertex indices ``(num_cells, 3)``.
+        Simplices as vertex indices ``(num_cells, d + 1)``.
     """
 
     def __init__(self, x: Float, cells: Int) -> None:
         self.x, self.cells = x, cells
-        corners = x[cells]  # (m, 3, 2)
+        d = x.shape[1]
+        corners = x[cells]  # (m, d + 1, d)
         lo, hi = corners.min(axis=1), corners.max(axis=1)
         m = len(cells)
-        self.origin = lo.min(axis=0) if m else np.zeros(2)
+        self.origin = lo.min(axis=0) if m else np.zeros(d)
         extent = (hi - lo).max(axis=1) if m else np.ones(1)
         # bins about the size of a typical cell: each cell spans a few bins
         self.g = g = float(max(np.median(extent), 1e-300)) if m else 1.0
         i0 = np.floor((lo - self.origin) / g).astype(np.int64)
         i1 = np.floor((hi - self.origin) / g).astype(np.int64)
-        self.shape = (i1.max(axis=0) + 1) if m else np.ones(2, dtype=np.int64)
-        nx, ny = i1[:, 0] - i0[:, 0] + 1, i1[:, 1] - i0[:, 1] + 1
-        count = nx * ny
+        self.shape = (i1.max(axis=0) + 1) if m else np.ones(d, dtype=np.int64)
+        self.strides = np.cumprod(np.concatenate([[1], self.shape[:0:-1]]))[::-1]
+        n = i1 - i0 + 1  # bins per axis of each cell
+        count = n.prod(axis=1)
         cell = np.repeat(np.arange(m), count)
         k = np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count, count)
-        bx = i0[cell, 0] + k % nx[cell]
-        by = i0[cell, 1] + k // nx[cell]
-        key = bx * self.shape[1] + by
+        key = np.zeros(len(cell), dtype=np.int64)
+        for axis in range(d - 1, -1, -1):  # the bins of each cell's box, last axis fastest
+            key += (i0[cell, axis] + k % n[cell, axis]) * self.strides[axis]
+            k = k // n[cell, axis]
         order = np.argsort(key, kind="stable")
         self.bin_cells = cell[order].astype(np.int32)
-        nbins = int(self.shape[0] * self.shape[1])
-        self.offsets = np.concatenate([[0], np.cumsum(np.bincount(key, minlength=nbins))])
+        key = key[order]
+        starts = np.flatnonzero(np.diff(key, prepend=-1))  # the first entry of each bin
+        self.keys = key[starts]
+        self.offsets = np.append(starts, len(key)).astype(np.int64)
 
     def contains(self, points: Float, allowed: Bool | None = None, tol: float = 1e-12) -> Bool:
-        """Whether each point lies in a triangle (among the ``allowed`` ones), ``(n,)``.
+        """Whether each point lies in a cell (among the ``allowed`` ones), ``(n,)``.
 
         A point counts as inside when its barycentric coordinates are all at least
-        ``-tol`` (relative: on an edge up to rounding is inside).
+        ``-tol`` (relative: on a facet up to rounding is inside).
         """
-        n = len(points)
+        n, d = points.shape
         ij = np.floor((points - self.origin) / self.g).astype(np.int64)
         ok = (ij >= 0).all(axis=1) & (ij < self.shape).all(axis=1)
-        key = np.where(ok, ij[:, 0] * self.shape[1] + ij[:, 1], 0)
-        start, stop = self.offsets[key], self.offsets[key + 1]
+        key = np.where(ok, ij @ self.strides, -1)
+        slot = np.minimum(np.searchsorted(self.keys, key), max(len(self.keys) - 1, 0))
+        ok &= (self.keys[slot] == key) if len(self.keys) else False
+        start, stop = self.offsets[slot], self.offsets[slot + 1]
         num = np.where(ok, stop - start, 0)
         pt = np.repeat(np.arange(n), num)
         c = self.bin_cells[
@@ -214,14 +242,25 @@ class CellLocator:
         if allowed is not None:
             keep = allowed[c]
             pt, c = pt[keep], c[keep]
-        a, b, d = (self.x[self.cells[c, i]] for i in range(3))
+        a = self.x[self.cells[c, 0]]
         p = points[pt]
-        det = (b[:, 0] - a[:, 0]) * (d[:, 1] - a[:, 1]) - (d[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
-        l1 = (p[:, 0] - a[:, 0]) * (d[:, 1] - a[:, 1]) - (d[:, 0] - a[:, 0]) * (p[:, 1] - a[:, 1])
-        l2 = (b[:, 0] - a[:, 0]) * (p[:, 1] - a[:, 1]) - (p[:, 0] - a[:, 0]) * (b[:, 1] - a[:, 1])
-        with np.errstate(divide="ignore", invalid="ignore"):
-            l1, l2 = l1 / det, l2 / det
-        inside = (l1 >= -tol) & (l2 >= -tol) & (1.0 - l1 - l2 >= -tol)
+        if d == 2:
+            b, e = self.x[self.cells[c, 1]] - a, self.x[self.cells[c, 2]] - a
+            q = p - a
+            det = b[:, 0] * e[:, 1] - e[:, 0] * b[:, 1]
+            l1 = q[:, 0] * e[:, 1] - e[:, 0] * q[:, 1]
+            l2 = b[:, 0] * q[:, 1] - q[:, 0] * b[:, 1]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                lam = np.column_stack([l1 / det, l2 / det])
+        else:
+            J = (self.x[self.cells[c, 1:]] - a[:, None, :]).transpose(0, 2, 1)  # (k, d, d)
+            ok_det = np.abs(np.linalg.det(J)) > 0
+            lam = np.full((len(c), d), -np.inf)
+            lam[ok_det] = np.linalg.solve(J[ok_det], (p - a)[ok_det][..., None])[..., 0]
+        rest = 1.0 - lam[:, 0]
+        for k in range(1, d):
+            rest = rest - lam[:, k]
+        inside = (lam >= -tol).all(axis=1) & (rest >= -tol)
         found = np.zeros(n, dtype=bool)
         found[pt[inside]] = True
         return found
@@ -295,17 +334,19 @@ def conforming_problems(
     This rank's problems.
     """
     problems = []
-    cells = cells[moved[cells].any(axis=1)]  # unmoved triangles keep their shape
-    a0, a1 = signed_areas(x, cells), signed_areas(y, cells)
-    d2 = cell_diameters(x, cells) ** 2
-    inverted = (np.sign(a1) != np.sign(a0)) | (np.abs(a1) <= 1e-10 * d2)
+    cells = cells[moved[cells].any(axis=1)]  # unmoved cells keep their shape
+    k = cell_kernels(cells.shape[1] - 1)
+    a0, a1 = k.signed_measures(x, cells), k.signed_measures(y, cells)
+    d = k.cell_diameters(x, cells)
+    # degenerate: measure below 1e-10 of the diameter's square or cube (relative)
+    inverted = (np.sign(a1) != np.sign(a0)) | (np.abs(a1) <= 1e-10 * d**k.tdim)
     if inverted.any():
         centre = y[cells[inverted]].mean(axis=1)
         problems.append(
             Problem(
-                "{count} conforming triangles would be inverted or degenerate near {where}: "
+                f"{{count}} conforming {k.name}s would be inverted or degenerate near {{where}}: "
                 "the background is too coarse or not acute there; refine near those points "
-                "or use an acute (e.g. equilateral) background",
+                "or use an acute (e.g. equilateral or A15) background",
                 centre,
                 int(inverted.sum()),
             )
@@ -496,14 +537,14 @@ def _pinch_points(mid: Float, loop: npt.NDArray[np.int64], fallback: Float) -> F
 def low_quality_cells(
     y: Float, cells: npt.NDArray, min_angle_deg: float
 ) -> tuple[Problem | None, float, float]:
-    """Conforming triangles whose smallest angle is below a floor.
+    """Conforming cells whose smallest angle (dihedral angle in 3D) is below a floor.
 
     Parameters
     ----------
     y
-        Vertex positions of the conforming mesh ``(num_vertices, 2)``.
+        Vertex positions of the conforming mesh ``(num_vertices, gdim)``.
     cells
-        Triangles to check ``(m, 3)`` (the moved ones: the others keep the background's
+        Cells to check ``(m, tdim + 1)`` (the moved ones: the others keep the background's
         angles).
     min_angle_deg
         The floor in degrees (0 disables the check).
@@ -517,14 +558,16 @@ def low_quality_cells(
     """
     if len(cells) == 0:
         return None, 180.0, 0.0
-    ang = np.degrees(interior_angles(y, cells))
+    k = cell_kernels(cells.shape[1] - 1)
+    ang = np.degrees(k.angles(y, cells))
     small = ang.min(axis=1)
     lo, hi = float(small.min()), float(ang.max())
     bad = small < min_angle_deg
     if not bad.any():
         return None, lo, hi
+    what = "an angle" if k.tdim == 2 else "a dihedral angle"
     problem = Problem(
-        "{count} conforming triangles have an angle below the quality floor of "
+        f"{{count}} conforming {k.name}s have {what} below the quality floor of "
         f"{min_angle_deg:g} degrees near {{where}}: refine the background there (or lower "
         "min_angle)",
         y[cells[bad]].mean(axis=1),

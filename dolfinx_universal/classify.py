@@ -1,8 +1,9 @@
-"""Classification of a background triangulation against a domain, and the straight map M_h.
+"""Classification of a background mesh against a domain, and the straight map M_h.
 
-Pure numpy on process-local arrays: ``x`` are vertex coordinates ``(num_vertices, 2)``,
-``cells`` vertex indices ``(num_cells, 3)``, ``s`` vertex signs (-1 inside, +1 outside or on
-Gamma), ``phi`` signed distances. Only the signs at vertices are used to classify.
+Pure numpy on process-local arrays: ``x`` are vertex coordinates ``(num_vertices, gdim)``,
+``cells`` vertex indices ``(num_cells, tdim + 1)`` (triangles or tetrahedra), ``s`` vertex
+signs (-1 inside, +1 outside or on Gamma), ``phi`` signed distances. Only the signs at
+vertices are used to classify.
 The triangle geometry (``signed_areas``, ``cell_diameters``, ``interior_angles``) lives in
 :mod:`dolfinx_universal._geometry` and is re-exported here.
 """
@@ -17,27 +18,70 @@ from ._geometry import Bool, Float, Int, cell_diameters, interior_angles, signed
 
 __all__ = [
     "cell_diameters",
+    "FACET_ORDER",
     "conditioning_angle",
     "interior_angles",
     "kept_cells",
     "perturbation_candidates",
     "positive_edges",
+    "positive_facets",
     "positively_cut",
     "proximal_vertex",
+    "shifted_vertices",
     "signed_areas",
     "straight_map",
 ]
 
 
+FACET_ORDER = {
+    2: np.array([[1, 2], [2, 0], [0, 1]]),
+    3: np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]]),
+}
+"""Row ``k``: the vertices of the facet opposite local vertex ``k`` of a simplex, ordered so
+that ``(k, *row)`` is an even permutation of the cell's vertices. A positive facet listed in
+this order keeps the orientation of its cell: its normal (the right-hand rule in 3D, the
+clockwise turn of the edge in 2D) points away from the inside vertex, out of the domain."""
+
+
 def positively_cut(s: Float, cells: Int) -> Bool:
-    """Cells with ``s = +1`` at exactly two vertices, shape ``(num_cells,)``."""
-    return (s[cells] > 0).sum(axis=1) == 2
+    """Cells with ``s = -1`` at exactly one vertex (``s = +1`` at the others), ``(num_cells,)``.
+
+    Their facet opposite the inside vertex is a positive facet (edge of a triangle, face of a
+    tetrahedron)."""
+    return (s[cells] > 0).sum(axis=1) == cells.shape[1] - 1
 
 
 def kept_cells(s: Float, cells: Int) -> Bool:
     """Cells of ``T_h^sub``: ``s = -1`` at one vertex or more, shape ``(num_cells,)``."""
     neg = s < 0
-    return neg[cells[:, 0]] | neg[cells[:, 1]] | neg[cells[:, 2]]
+    kept = neg[cells[:, 0]] | neg[cells[:, 1]]
+    for k in range(2, cells.shape[1]):
+        kept |= neg[cells[:, k]]
+    return kept
+
+
+def positive_facets(s: Float, cells: Int) -> tuple[Int, Int]:
+    """Positive facets of the positively cut cells among ``cells``.
+
+    Parameters
+    ----------
+    s
+        Vertex signs.
+    cells
+        Cells ``(m, tdim + 1)``, all positively cut.
+
+    Returns
+    -------
+    facets
+        Vertex indices of the facet opposite the inside vertex ``(m, tdim)``, in the order of
+        :data:`FACET_ORDER` (the cell's orientation kept).
+    w
+        The inside vertex of each cell ``(m,)``.
+    """
+    k = np.argmin(s[cells], axis=1)  # local index of the one vertex inside
+    rows = np.arange(len(cells))
+    order = FACET_ORDER[cells.shape[1] - 1][k]
+    return cells[rows[:, None], order], cells[rows, k]
 
 
 def positive_edges(s: Float, cells: Int) -> tuple[Int, Int, Int]:
@@ -57,12 +101,8 @@ def positive_edges(s: Float, cells: Int) -> tuple[Int, Int, Int]:
         inside. ``(u, v, w)`` is a cyclic shift of the cell's own vertex order, so it keeps
         the cell's orientation.
     """
-    k = np.argmin(s[cells], axis=1)  # local index of the one vertex inside
-    rows = np.arange(len(cells))
-    w = cells[rows, k]
-    u = cells[rows, (k + 1) % 3]
-    v = cells[rows, (k + 2) % 3]
-    return u, v, w
+    facets, w = positive_facets(s, cells)
+    return facets[:, 0], facets[:, 1], w
 
 
 def _stack_columns(u: Int, v: Int, w: Int) -> Int:
@@ -133,6 +173,24 @@ def perturbation_candidates(x: Float, phi: Float, s: Float, cells: Int, eta: flo
     return cast(Int, np.unique(c[hit & (s[c] < 0)]))
 
 
+def shifted_vertices(phi: Float, s: Float, cells: Int, eta: float, h: Float) -> Int:
+    """Inside vertices of ``cells`` within ``eta h`` of Gamma, to count as on Gamma (3D).
+
+    The tetrahedral form of the quality perturbation (Rangarajan, Kabaria & Lew 2019): a
+    vertex with ``-eta h <= phi < 0`` is relocated onto Gamma. Without it, inside vertices
+    just below the surface are passed by the snapped positive faces (chords of the surface)
+    and their tetrahedra invert.
+
+    Returns
+    -------
+    Unique vertex indices (process-local), possibly empty.
+    """
+    if eta <= 0 or len(cells) == 0:
+        return np.empty(0, dtype=np.int64)
+    v = np.unique(cells)
+    return cast(Int, v[(s[v] < 0) & (phi[v] >= -eta * h[v])])
+
+
 def straight_map(
     x: Float,
     phi: Float,
@@ -152,11 +210,11 @@ def straight_map(
     Parameters
     ----------
     x
-        Vertex coordinates ``(n, 2)``.
+        Vertex coordinates ``(n, gdim)``.
     phi
         Signed distances ``(n,)``; only used where ``|phi| < R_r`` (may be ``inf`` elsewhere).
     closest, normal
-        Closest points ``pi(x)`` and outward normals there ``(n, 2)``; only read where the
+        Closest points ``pi(x)`` and outward normals there ``(n, gdim)``; only read where the
         vertex moves.
     on_positive_edge
         Vertex flags ``(n,)``.
@@ -167,9 +225,9 @@ def straight_map(
 
     Returns
     -------
-    Images ``M_h(x)``, shape ``(n, 2)``.
+    Images ``M_h(x)``, shape ``(n, gdim)``.
     """
-    y = np.array(x[:, :2], dtype=np.float64, copy=True)
+    y = np.array(x, dtype=np.float64, copy=True)
     relax = (~on_positive_edge) & (phi < 0) & (phi > -R_r)
     f = alpha * h[relax] * (1.0 + phi[relax] / R_r[relax])
     y[relax] -= f[:, None] * normal[relax]

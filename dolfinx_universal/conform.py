@@ -26,13 +26,23 @@ from .checks import (
     require_kept,
 )
 from .classify import positively_cut
-from .pipeline import band_cells, classify_near, gamma_h, map_band, perturb, project_band
+from .dimensions import cell_kernels
+from .gamma_tet import SurfaceParts, all_outside_faces, sampled_parts, surface_topology
+from .pipeline import (
+    band_cells,
+    classify_near,
+    gamma_h,
+    map_band,
+    perturb,
+    project_band,
+    relocate,
+)
 from .relax import movable_vertices, relax_vertices
 from .validation import MeshingError, Problem, collective_call, raise_collective
 
 if TYPE_CHECKING:
     from .boundaries import Boundary
-    from .pipeline import PositiveEdges
+    from .pipeline import PositiveFacets
     from .sizing import CurveSamples
 
 __all__ = [
@@ -111,27 +121,30 @@ class ConformingMesh:
         """
         if self._facet_tags is None:
             topo = self.mesh.topology
-            topo.create_connectivity(1, 2)
-            topo.create_connectivity(1, 0)
+            fdim = topo.dim - 1
+            topo.create_connectivity(fdim, topo.dim)
+            topo.create_connectivity(fdim, 0)
             facets = dmesh.exterior_facet_indices(topo)
-            fv = topo.connectivity(1, 0).array.reshape(-1, 2)[facets]
+            fv = topo.connectivity(fdim, 0).array.reshape(-1, topo.dim)[facets]
             values = np.where(self.on_positive_edge[fv].all(axis=1), IMMERSED, OUTER)
             self._facet_tags = dmesh.meshtags(
-                self.mesh, 1, facets.astype(np.int32), values.astype(np.int32)
+                self.mesh, fdim, facets.astype(np.int32), values.astype(np.int32)
             )
         return self._facet_tags
 
     @property
     def cells(self) -> npt.NDArray[np.int32]:
-        """Cell -> vertex connectivity of ``mesh``, ``(num_cells, 3)``."""
-        return self.mesh.topology.connectivity(2, 0).array.reshape(-1, 3)
+        """Cell -> vertex connectivity of ``mesh``, ``(num_cells, tdim + 1)``."""
+        tdim = self.mesh.topology.dim
+        return self.mesh.topology.connectivity(tdim, 0).array.reshape(-1, tdim + 1)
 
     @property
     def x(self) -> npt.NDArray[np.float64]:
-        """Vertex coordinates of ``mesh`` by vertex index, ``(num_vertices, 2)``."""
+        """Vertex coordinates of ``mesh`` by vertex index, ``(num_vertices, gdim)``."""
+        tdim = self.mesh.topology.dim
         v2n = np.empty(len(self.sign), dtype=np.int32)
-        v2n[self.cells] = self.mesh.geometry.dofmaps[0][:, :3]
-        return self.mesh.geometry.x[v2n, :2]
+        v2n[self.cells] = self.mesh.geometry.dofmaps[0][:, : tdim + 1]
+        return self.mesh.geometry.x[v2n, :tdim]
 
     @property
     def positively_cut(self) -> npt.NDArray[np.bool_]:
@@ -140,13 +153,16 @@ class ConformingMesh:
 
 
 def _check_background(msh: dmesh.Mesh) -> None:
-    """A clear error for meshes that are not planar triangle meshes (collective)."""
+    """A clear error for meshes that are neither planar triangle nor tetrahedron meshes
+    (collective)."""
     topo = msh.topology
-    if topo.dim != 2 or topo.cell_type != dmesh.CellType.triangle:
+    if topo.cell_type not in (dmesh.CellType.triangle, dmesh.CellType.tetrahedron):
         raise ValueError(
-            f"universal meshes are planar triangle meshes (for now); got a {topo.dim}D mesh "
-            f"of {topo.cell_type.name} cells"
+            "universal meshes are planar triangle meshes or tetrahedron meshes; got a "
+            f"{topo.dim}D mesh of {topo.cell_type.name} cells"
         )
+    if topo.dim == 3:
+        return
     z = msh.geometry.x[:, 2]
     off = msh.comm.allreduce(float(np.abs(z).max()) if len(z) else 0.0, op=MPI.MAX)
     if msh.geometry.dim != 2 and off > 0.0:
@@ -159,17 +175,19 @@ def _check_background(msh: dmesh.Mesh) -> None:
 def _local_arrays(
     msh: dmesh.Mesh,
 ) -> tuple[Float, npt.NDArray[np.int32], npt.NDArray[np.int32]]:
-    """Vertex coordinates, cells and vertex -> node map of a degree-1 mesh (process-local)."""
+    """Vertex coordinates ``(num_vertices, tdim)``, cells ``(num_cells, tdim + 1)`` and
+    vertex -> node map of a degree-1 mesh (process-local)."""
     topo = msh.topology
-    topo.create_connectivity(2, 0)
+    tdim = topo.dim
+    topo.create_connectivity(tdim, 0)
     dofmap = msh.geometry.dofmaps[0]
-    if dofmap.shape[1] != 3:
-        raise ValueError("the background mesh must have degree-1 (straight) triangle geometry")
-    c2v = topo.connectivity(2, 0).array.reshape(-1, 3)
+    if dofmap.shape[1] != tdim + 1:
+        raise ValueError("the background mesh must have degree-1 (straight) geometry")
+    c2v = topo.connectivity(tdim, 0).array.reshape(-1, tdim + 1)
     imv = topo.index_map(0)
     v2n = np.empty(imv.size_local + imv.num_ghosts, dtype=np.int32)
     v2n[c2v] = dofmap
-    return msh.geometry.x[v2n, :2].copy(), c2v, v2n
+    return msh.geometry.x[v2n, :tdim].copy(), c2v, v2n
 
 
 @dataclass
@@ -286,18 +304,23 @@ class UniversalMesh:
         eta, min_angle = float(eta), float(min_angle)
         if not 0.0 <= eta < 1.0:  # also rejects NaN
             raise ValueError(f"eta must lie in [0, 1) (0 disables the perturbation), got {eta}")
-        if not 0.0 <= min_angle < 60.0:
-            raise ValueError(f"min_angle must lie in [0, 60) degrees, got {min_angle}")
+        kernels = cell_kernels(background.topology.dim)
+        if not 0.0 <= min_angle < kernels.max_min_angle:
+            raise ValueError(
+                f"min_angle must lie in [0, {kernels.max_min_angle:.4g}) degrees, got {min_angle}"
+            )
         if on_low_quality not in ("warn", "raise"):
             raise ValueError(f"on_low_quality must be 'warn' or 'raise', got {on_low_quality!r}")
         self.background = background
         self.eta, self.min_angle, self.on_low_quality = eta, min_angle, on_low_quality
         self.relax = bool(relax)
         self._samples: tuple[object, float, CurveSamples] | None = None
+        self._parts: tuple[object, float, SurfaceParts] | None = None
         comm = self.comm = background.comm
         topo = background.topology
+        self.tdim = tdim = topo.dim
         self._imv = topo.index_map(0)
-        self._nco = topo.index_map(2).size_local
+        self._nco = topo.index_map(tdim).size_local
         x, c2v, v2n = _local_arrays(background)
         self._x, self._c2v, self._v2n = x, c2v, v2n
         nv = len(x)
@@ -327,13 +350,14 @@ class UniversalMesh:
         elif not (alpha_min - 1e-12 <= alpha <= 1.0):
             raise ValueError(f"alpha must lie in [(1 + h/R_r)^-1, 1] = [{alpha_min:.4g}, 1]")
         self.alpha = float(alpha)
-        for a, b in ((2, 1), (1, 2), (1, 0), (0, 2)):
+        fdim = tdim - 1
+        for a, b in ((tdim, fdim), (fdim, tdim), (fdim, 0), (0, tdim)):
             topo.create_connectivity(a, b)
-        self._c2f = topo.connectivity(2, 1).array.reshape(-1, 3)
-        f2c = topo.connectivity(1, 2)
+        self._c2f = topo.connectivity(tdim, fdim).array.reshape(-1, tdim + 1)
+        f2c = topo.connectivity(fdim, tdim)
         self._f2c_offsets, self._f2c = f2c.offsets, f2c.array
         ext = dmesh.exterior_facet_indices(topo)
-        self._outer_vertices = np.unique(topo.connectivity(1, 0).array.reshape(-1, 2)[ext])
+        self._outer_vertices = np.unique(topo.connectivity(fdim, 0).array.reshape(-1, tdim)[ext])
         n2v = np.empty(len(background.geometry.x), dtype=np.int32)
         n2v[v2n] = np.arange(nv, dtype=np.int32)
         self._n2v = n2v
@@ -348,6 +372,12 @@ class UniversalMesh:
             says where and what to do.
         """
         comm, imv, x, c2v = self.comm, self._imv, self._x, self._c2v
+        gdim = getattr(boundary, "gdim", 2)
+        if gdim != self.tdim:
+            raise ValueError(
+                f"a {gdim}D boundary cannot be meshed on a {self.tdim}D background: curves "
+                "need a triangle background, surfaces a tetrahedron background"
+            )
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
         s, band = classify_near(comm, boundary, x, self.h, self.R_r)
@@ -358,15 +388,18 @@ class UniversalMesh:
         t2 = time.perf_counter()
         near_all, near_cells = band_cells(self.background.topology, band, self._nco)
         xp, phi, s, num_relocated = perturb(
-            comm, imv, x, phi, s, closest, c2v[near_cells], self.eta
+            comm, imv, x, phi, s, closest, c2v[near_cells], self.eta, self.h
         )
         pe = gamma_h(imv, s, c2v, near_cells)
         require_kept(comm, pe.kept[: self._nco], boundary)
+        if self.tdim == 3:
+            pe, repaired = self._repair_faces(s, phi, xp, closest, pe, near_cells)
+            num_relocated += repaired
         max_theta, num_loops, num_pieces = self._check_gamma_h(
             boundary, xp, s, phi, pe, band, near_cells
         )
         y, moved = map_band(
-            x, xp, phi, closest, normal, pe.on_edge, self.h, self.R_r, self.alpha, band
+            x, xp, phi, closest, normal, pe.on_gamma, self.h, self.R_r, self.alpha, band
         )
         raise_collective(
             comm,
@@ -374,16 +407,16 @@ class UniversalMesh:
         )
         if self.relax:
             t_relax = time.perf_counter()
-            movable = movable_vertices(imv, s, band, pe.on_edge, pe.in_kept, self._outer_vertices)
+            movable = movable_vertices(imv, s, band, pe.on_gamma, pe.in_kept, self._outer_vertices)
             y, xp, moved = relax_vertices(
                 comm, imv, boundary._closest_normal, x, xp, y, c2v[pe.near_kept], movable,
-                pe.on_edge, normal, phi, self.h,
+                pe.on_gamma, normal, phi, self.h,
             )[:3]  # fmt: skip
             timings["relax"] = time.perf_counter() - t_relax
         angle_range = self._check_quality(y, moved, c2v[pe.near_kept])
         timings["map"] = time.perf_counter() - t2
         return StraightMap(
-            sign=s, phi=phi, closest=closest, x=xp, y=y, on_positive_edge=pe.on_edge,
+            sign=s, phi=phi, closest=closest, x=xp, y=y, on_positive_edge=pe.on_gamma,
             kept=pe.kept, moved=moved, near_cells=near_all.astype(np.int32),
             num_relocated=num_relocated, timings=timings,
             max_conditioning_angle=float(np.degrees(max_theta)), moved_angle_range=angle_range,
@@ -396,7 +429,7 @@ class UniversalMesh:
         xp: npt.NDArray[np.float64],
         s: npt.NDArray[np.float64],
         phi: npt.NDArray[np.float64],
-        pe: PositiveEdges,
+        pe: PositiveFacets,
         band: Int,
         near_cells: npt.NDArray[np.int32],
     ) -> tuple[float, int, int]:
@@ -416,19 +449,76 @@ class UniversalMesh:
         cells = near_cells.astype(np.int32)
         raise_collective(comm, containment_problems(self._locator, boundary, cells, comm))
         problems, theta = classification_problems(
-            xp, s, phi, pe, self._c2v, self._c2f, self._f2c_offsets, self._f2c, imv.size_local
-        )
+            xp, s, phi, pe, self._c2v, self._c2f, self._f2c_offsets, self._f2c, imv.size_local,
+            self._x,
+        )  # fmt: skip
         raise_collective(comm, problems)
         max_theta = comm.allreduce(theta, op=MPI.MAX)
         far_kept = comm.allreduce(bool(np.any(s[self._outer_vertices] < 0)), op=MPI.LOR)
-        samples = self._curve_samples(boundary, band)
-        u, v, w = pe.u, pe.v, pe.w
-        topo_problems, num_loops, num_pieces = gamma_h_topology(
-            comm, imv.local_to_global(np.concatenate([u, v]).astype(np.int32)).reshape(2, -1).T,
-            xp[u], xp[v], xp[w], samples, far_kept,
-        )  # fmt: skip
+        facets = pe.facets
+        gids = imv.local_to_global(facets.ravel().astype(np.int32)).reshape(facets.shape)
+        if self.tdim == 2:
+            samples = self._curve_samples(boundary, band)
+            u, v, w = pe.u, pe.v, pe.w
+            topo_problems, num_loops, num_pieces = gamma_h_topology(
+                comm, gids, xp[u], xp[v], xp[w], samples, far_kept
+            )
+        else:
+            parts = self._surface_parts(boundary, band)
+            topo_problems, num_loops, num_pieces = surface_topology(
+                comm, gids, xp[facets[:, 0]], xp[facets[:, 1]], xp[facets[:, 2]], parts, far_kept
+            )
         raise_collective(comm, topo_problems)
         return max_theta, num_loops, num_pieces
+
+    def _repair_faces(
+        self,
+        s: Float,
+        phi: Float,
+        xp: Float,
+        closest: Float,
+        pe: PositiveFacets,
+        near_cells: npt.NDArray[np.int32],
+    ) -> tuple[PositiveFacets, int]:
+        """Tetrahedra: remove the interior faces with three vertices outside (collective).
+
+        The shallower inside vertex beside each such face counts as on Gamma
+        (:func:`~dolfinx_universal.gamma_tet.all_outside_faces`); repeated until none is
+        left (a few rounds at most: each round relocates vertices within ``h`` of Gamma).
+        ``s``, ``phi`` and ``xp`` are updated in place.
+
+        Returns
+        -------
+        The positive facets after the repair, and the number of vertices relocated (global).
+        """
+        total = 0
+        for _ in range(8):
+            _, verts = all_outside_faces(
+                s, phi, pe.cells, pe.facets, pe.w, self._c2v, self._c2f, self._f2c_offsets,
+                self._f2c, pe.kept,
+            )  # fmt: skip
+            moved = relocate(self.comm, self._imv, xp, phi, s, closest, verts)
+            if moved == 0:
+                break
+            total += moved
+            pe = gamma_h(self._imv, s, self._c2v, near_cells)
+        return pe, total
+
+    def _surface_parts(self, boundary: Boundary, band_idx: npt.NDArray) -> SurfaceParts:
+        """Samples of the surfaces of Gamma, about a quarter of the mesh size apart (cached
+        for the last boundary)."""
+        hmin = self.comm.allreduce(
+            float(self.h[band_idx].min()) if len(band_idx) else np.inf, op=MPI.MIN
+        )
+        if not np.isfinite(hmin):
+            hmin = self.comm.allreduce(float(np.max(self.h)) if len(self.h) else 1.0, op=MPI.MAX)
+        spacing = 0.5 * hmin
+        cached = self._parts
+        if cached is not None and cached[0] is boundary and cached[1] <= spacing:
+            return cached[2]
+        parts = sampled_parts(self.comm, boundary, spacing)
+        self._parts = (boundary, spacing, parts)
+        return parts
 
     @cached_property
     def _locator(self) -> CellLocator:
@@ -493,12 +583,14 @@ class UniversalMesh:
         sm = self.straight_map(boundary)
         t3 = time.perf_counter()
         kc = np.flatnonzero(sm.kept[: self._nco]).astype(np.int32)
-        sub, cell_emap, vertex_emap, node_map = dmesh.create_submesh(self.background, 2, kc)
-        sub.geometry.x[:, :2] = sm.y[self._n2v[node_map]]
-        sub.geometry.x[:, 2] = 0.0
+        tdim = self.tdim
+        sub, cell_emap, vertex_emap, node_map = dmesh.create_submesh(self.background, tdim, kc)
+        sub.geometry.x[:, :tdim] = sm.y[self._n2v[node_map]]
+        if tdim == 2:
+            sub.geometry.x[:, 2] = 0.0
         stopo = sub.topology
-        stopo.create_connectivity(2, 0)
-        simv, simc = stopo.index_map(0), stopo.index_map(2)
+        stopo.create_connectivity(tdim, 0)
+        simv, simc = stopo.index_map(0), stopo.index_map(tdim)
         nsv = simv.size_local + simv.num_ghosts
         vmap = vertex_emap.sub_topology_to_topology(np.arange(nsv, dtype=np.int32), False)
         cmap = cell_emap.sub_topology_to_topology(

@@ -17,7 +17,13 @@ import numpy.typing as npt
 from dolfinx import mesh as dmesh
 
 from ._geometry import Bool, Float, Int
-from .classify import kept_cells, perturbation_candidates, positive_edges, positively_cut
+from .classify import (
+    kept_cells,
+    perturbation_candidates,
+    positive_facets,
+    positively_cut,
+    shifted_vertices,
+)
 from .classify import straight_map as _straight_map
 from .validation import Problem, collective_call, raise_collective, vertex_reduce
 
@@ -27,13 +33,14 @@ if TYPE_CHECKING:
     from .boundaries import Boundary
 
 __all__ = [
-    "PositiveEdges",
+    "PositiveFacets",
     "band_cells",
     "classify_near",
     "gamma_h",
     "map_band",
     "perturb",
     "project_band",
+    "relocate",
 ]
 
 
@@ -54,7 +61,7 @@ def classify_near(
     boundary
         The domain.
     x
-        Vertex coordinates ``(num_vertices, 2)``.
+        Vertex coordinates ``(num_vertices, gdim)``.
     h, R_r
         Mesh size and relaxation radius at each vertex ``(num_vertices,)``.
 
@@ -73,9 +80,7 @@ def classify_near(
         box = np.asarray(boundary.bounding_box(), dtype=float)
         lo, hi = box[0] - pad, box[1] + pad
         far = np.asarray(boundary.sign((hi + pad)[None]), dtype=float)[0]
-        cand = np.flatnonzero(
-            (x[:, 0] >= lo[0]) & (x[:, 0] <= hi[0]) & (x[:, 1] >= lo[1]) & (x[:, 1] <= hi[1])
-        )
+        cand = np.flatnonzero(np.all((x >= lo) & (x <= hi), axis=1))
         s = np.full(nv, far)
         s[cand] = boundary.sign(x[cand])
         return s, cand[np.asarray(boundary.near(x[cand], R_r[cand]), dtype=bool)]
@@ -111,18 +116,18 @@ def project_band(
         Signed distances; ``+-inf`` (by sign) outside the band ``(num_vertices,)``.
     closest, normal
         Closest points ``pi(x)`` and outward normals there; NaN outside the band
-        ``(num_vertices, 2)``.
+        ``(num_vertices, gdim)``.
 
     Raises
     ------
     MeshingError
         On every rank, when the projection returns NaN/inf somewhere.
     """
-    nv = len(x)
+    nv, gdim = x.shape
     s = s.copy()
     phi = np.where(s < 0, -np.inf, np.inf)
-    closest = np.full((nv, 2), np.nan)
-    normal = np.full((nv, 2), np.nan)
+    closest = np.full((nv, gdim), np.nan)
+    normal = np.full((nv, gdim), np.nan)
     xb = x[band]
     phi_b, y_b, n_b = collective_call(comm, "closest-point projection", boundary.project_normal, xb)
     bad = ~(np.isfinite(phi_b) & np.isfinite(y_b).all(axis=1))
@@ -163,7 +168,7 @@ def band_cells(
     near_owned
         The owned ones among them ``(m_owned,)``.
     """
-    near_all = dmesh.compute_incident_entities(topology, band.astype(np.int32), 0, 2)
+    near_all = dmesh.compute_incident_entities(topology, band.astype(np.int32), 0, topology.dim)
     return near_all, near_all[near_all < num_owned_cells]
 
 
@@ -176,11 +181,15 @@ def perturb(
     closest: Float,
     near: Int,
     eta: float,
+    h: Float,
 ) -> tuple[Float, Float, Float, int]:
     """The eta quality perturbation: relocate inside vertices too close to Gamma (collective).
 
-    Vertices selected by :func:`~dolfinx_universal.classify.perturbation_candidates` on any
-    rank move to their closest point on Gamma (sign +1, distance 0), until a fixed point.
+    Vertices selected on any rank move to their closest point on Gamma (sign +1, distance
+    0), until a fixed point. Triangles: those of
+    :func:`~dolfinx_universal.classify.perturbation_candidates` (Rangarajan & Lew 2014);
+    tetrahedra: the inside vertices within ``eta h`` of Gamma
+    (:func:`~dolfinx_universal.classify.shifted_vertices`).
 
     Parameters
     ----------
@@ -189,18 +198,21 @@ def perturb(
     imv
         Vertex index map.
     x, closest
-        Vertex coordinates and closest points ``(num_vertices, 2)``.
+        Vertex coordinates and closest points ``(num_vertices, gdim)``.
     phi, s
         Signed distances and signs ``(num_vertices,)`` (not modified).
     near
-        Owned cells at the band, as vertex indices ``(m, 3)``.
+        Owned cells at the band, as vertex indices ``(m, tdim + 1)``.
     eta
         Perturbation threshold; 0 disables the perturbation.
+    h
+        Mesh size at each vertex ``(num_vertices,)``.
 
     Returns
     -------
     xp, phi, s
-        Perturbed positions ``(num_vertices, 2)``, distances and signs ``(num_vertices,)``.
+        Perturbed positions ``(num_vertices, gdim)``, distances and signs
+        ``(num_vertices,)``.
     num_relocated
         Number of vertices relocated (global).
     """
@@ -208,7 +220,10 @@ def perturb(
     xp, phi, s = x.copy(), phi.copy(), s.copy()
     relocated = np.zeros(nv, dtype=bool)
     while eta > 0:
-        cand = perturbation_candidates(xp, phi, s, near, eta)
+        if near.shape[1] == 3:
+            cand = perturbation_candidates(xp, phi, s, near, eta)
+        else:
+            cand = shifted_vertices(phi, s, near, eta, h)
         if not comm.allreduce(bool((~relocated[cand]).any()), op=MPI.LOR):
             break  # nothing new on any rank (no reduction of flags needed)
         flag = np.zeros(nv)
@@ -221,21 +236,36 @@ def perturb(
     return xp, phi, s, comm.allreduce(int(relocated[: imv.size_local].sum()))
 
 
+def relocate(
+    comm: MPI.Comm, imv: IndexMap, xp: Float, phi: Float, s: Float, closest: Float, vertices: Int
+) -> int:
+    """Relocate ``vertices`` (found on any rank) onto Gamma in place: ``xp = pi(x)``, sign
+    +1, distance 0 (collective). Returns the global number of vertices relocated."""
+    flag = np.zeros(len(xp))
+    flag[vertices] = 1.0
+    new = (vertex_reduce(imv, flag, "sum") > 0) & (s < 0)
+    xp[new], phi[new], s[new] = closest[new], 0.0, 1.0
+    return int(comm.allreduce(int(new[: imv.size_local].sum())))
+
+
 @dataclass
-class PositiveEdges:
-    """Positive edges of the owned positively cut cells, and the kept cells (Gamma_h).
+class PositiveFacets:
+    """Positive facets of the owned positively cut cells, and the kept cells (Gamma_h).
 
     Attributes
     ----------
     cells
         Owned positively cut cells ``(m,)``.
-    u, v, w
-        Their positive edges ``(u, v)`` and inside vertices ``w`` ``(m,)`` (see
-        :func:`~dolfinx_universal.classify.positive_edges`).
+    facets
+        Their positive facets ``(m, tdim)`` (edges of triangles, faces of tetrahedra), in
+        the order of :data:`~dolfinx_universal.classify.FACET_ORDER` (normals out of the
+        domain).
+    w
+        Their inside vertices ``(m,)``.
     count
-        Global number of positive edges at each vertex ``(num_vertices,)``.
-    on_edge
-        Vertices of a positive edge (snapped onto Gamma) ``(num_vertices,)``.
+        Global number of positive facets at each vertex ``(num_vertices,)``.
+    on_gamma
+        Vertices of a positive facet (snapped onto Gamma) ``(num_vertices,)``.
     kept
         Cells of ``T_h^sub`` (owned and ghost) ``(num_cells,)``.
     near_kept
@@ -245,20 +275,29 @@ class PositiveEdges:
     """
 
     cells: Int
-    u: Int
-    v: Int
+    facets: Int
     w: Int
     count: Float
-    on_edge: Bool
+    on_gamma: Bool
     kept: Bool
     near_kept: Int
     in_kept: Bool
 
+    @property
+    def u(self) -> Int:
+        """First vertex of each positive edge (triangles) ``(m,)``."""
+        return self.facets[:, 0]
 
-def gamma_h(imv: IndexMap, s: Float, c2v: Int, near_cells: Int) -> PositiveEdges:
-    """Positive edges, Gamma_h and the kept cells from the final signs (collective).
+    @property
+    def v(self) -> Int:
+        """Second vertex of each positive edge (triangles) ``(m,)``."""
+        return self.facets[:, 1]
 
-    A vertex outside the domain in a kept triangle is next to an inside vertex, hence in the
+
+def gamma_h(imv: IndexMap, s: Float, c2v: Int, near_cells: Int) -> PositiveFacets:
+    """Positive facets, Gamma_h and the kept cells from the final signs (collective).
+
+    A vertex outside the domain in a kept cell is next to an inside vertex, hence in the
     band: the incidence counts near the band are all that the checks need.
 
     Parameters
@@ -268,30 +307,30 @@ def gamma_h(imv: IndexMap, s: Float, c2v: Int, near_cells: Int) -> PositiveEdges
     s
         Final vertex signs ``(num_vertices,)``.
     c2v
-        Cell -> vertex connectivity (owned cells first) ``(num_cells, 3)``.
+        Cell -> vertex connectivity (owned cells first) ``(num_cells, tdim + 1)``.
     near_cells
         Owned cells at the band ``(m,)`` (:func:`band_cells`).
 
     Returns
     -------
-    The positive edges and incidences.
+    The positive facets and incidences.
     """
     nv = len(s)
     near = c2v[near_cells]
     pc_owned = near_cells[positively_cut(s, near)]
-    u, v, w = positive_edges(s, c2v[pc_owned])
+    facets, w = positive_facets(s, c2v[pc_owned])
     kept = kept_cells(s, c2v)
     near_kept = near_cells[kept[near_cells]]
     # both incidences in one reduction over the ranks
     local = np.column_stack(
         [
-            np.bincount(np.concatenate([u, v]), minlength=nv),
+            np.bincount(facets.ravel(), minlength=nv),
             np.bincount(c2v[near_kept].ravel(), minlength=nv),
         ]
     ).astype(np.float64)
     both = vertex_reduce(imv, local, "sum")
     count, in_kept = both[:, 0].copy(), both[:, 1] > 0
-    return PositiveEdges(pc_owned, u, v, w, count, count > 0, kept, near_kept, in_kept)
+    return PositiveFacets(pc_owned, facets, w, count, count > 0, kept, near_kept, in_kept)
 
 
 def map_band(
@@ -300,7 +339,7 @@ def map_band(
     phi: Float,
     closest: Float,
     normal: Float,
-    on_edge: Bool,
+    on_gamma: Bool,
     h: Float,
     R_r: Float,
     alpha: float,
@@ -311,13 +350,13 @@ def map_band(
     Parameters
     ----------
     x, xp
-        Original and perturbed vertex positions ``(num_vertices, 2)``.
+        Original and perturbed vertex positions ``(num_vertices, gdim)``.
     phi
         Signed distances ``(num_vertices,)``.
     closest, normal
-        Closest points and normals ``(num_vertices, 2)``.
-    on_edge
-        Vertices of positive edges ``(num_vertices,)``.
+        Closest points and normals ``(num_vertices, gdim)``.
+    on_gamma
+        Vertices of positive facets ``(num_vertices,)``.
     h, R_r
         Mesh size and relaxation radius at each vertex ``(num_vertices,)``.
     alpha
@@ -328,13 +367,13 @@ def map_band(
     Returns
     -------
     y
-        Images ``M_h(xp)`` ``(num_vertices, 2)``.
+        Images ``M_h(xp)`` ``(num_vertices, gdim)``.
     moved
         Vertices whose image differs from their original position ``(num_vertices,)``.
     """
     y = xp.copy()
     y[band] = _straight_map(
-        xp[band], phi[band], closest[band], normal[band], on_edge[band], h[band], R_r[band], alpha
+        xp[band], phi[band], closest[band], normal[band], on_gamma[band], h[band], R_r[band], alpha
     )
     moved = np.zeros(len(x), dtype=bool)
     moved[band] = np.any(y[band] != x[band], axis=1)

@@ -39,6 +39,7 @@ from mpi4py import MPI
 import numpy as np
 import numpy.typing as npt
 
+from . import _tetrahedron as tet
 from ._geometry import Bool, Float, Int
 from .validation import collective_call, vertex_reduce
 
@@ -99,6 +100,15 @@ TARGET_RADIUS_RATIO = 2.6
 _ANGLE_SCALE = 1.0 / np.sin(np.radians(TARGET_ANGLE))
 _RADIUS_SCALE = TARGET_RADIUS_RATIO / 2.0
 _MAX_COLOURS = 62
+DIRECTIONS_3D = 12
+"""Tetrahedra: directions per vertex and sweep (a Fibonacci sphere turned from sweep to
+sweep)."""
+SLIDES_3D = 6
+"""Tetrahedra: directions in the tangent plane tried by a vertex sliding on Gamma."""
+SWEEPS_3D = 16
+"""Tetrahedra: sweeps over all colours (the vertices on Gamma slide in all of them: the
+boundary tetrahedra of a snapped tetrahedral mesh are repaired by sliding; Rangarajan,
+Kabaria & Lew 2019)."""
 
 
 class Relaxation(NamedTuple):
@@ -115,6 +125,13 @@ class Relaxation(NamedTuple):
     """Accepted moves, over all sweeps and ranks."""
     num_sweeps: int
     """Sweeps made."""
+
+
+def _length(d: Float) -> Float:
+    """Euclidean lengths of vectors ``(..., dim)`` (``np.hypot`` in 2D, as before)."""
+    if d.shape[-1] == 2:
+        return np.hypot(d[..., 0], d[..., 1])
+    return np.sqrt((d * d).sum(axis=-1))
 
 
 def shape_quality(p: Float, a: Float, b: Float, orientation: Float) -> Float:
@@ -180,7 +197,7 @@ def coordinate_priority(x: Float) -> Float:
     A function of the coordinates' bits only (splitmix64), so that a vertex has the same
     priority on every rank and for every partition.
     """
-    bits = np.ascontiguousarray(x[:, :2], dtype=np.float64).view(np.uint64)
+    bits = np.ascontiguousarray(x, dtype=np.float64).view(np.uint64)
 
     def mix(z: npt.NDArray[np.uint64]) -> npt.NDArray[np.uint64]:
         z = z + np.uint64(0x9E3779B97F4A7C15)
@@ -189,7 +206,10 @@ def coordinate_priority(x: Float) -> Float:
         return z ^ (z >> np.uint64(31))
 
     with np.errstate(over="ignore"):
-        z = mix(bits[:, 0] ^ mix(bits[:, 1]))
+        inner = mix(bits[:, -1])
+        for k in range(bits.shape[1] - 2, -1, -1):  # 2D: mix(b0 ^ mix(b1))
+            inner = mix(bits[:, k] ^ inner)
+        z = inner
     return (z >> np.uint64(11)).astype(np.float64) * 2.0**-53
 
 
@@ -260,7 +280,7 @@ def vertex_colours(sub: _Sub, cells: Int, priority: Float) -> Int:
         colour[new] = np.argmax(free, axis=1)
         # Record the new colours in the masks of the vertices sharing a triangle.
         cbits = np.where(valid & (colour[corner] >= 0), 2 ** np.maximum(colour[corner], 0), 0)
-        cmask = cbits[:, 0] | cbits[:, 1] | cbits[:, 2]
+        cmask = np.bitwise_or.reduce(cbits, axis=1)
         if len(starts):
             used[seg] |= np.bitwise_or.reduceat(cmask[cell_of], starts)
         if sub.map is not None:
@@ -283,7 +303,7 @@ def relax_vertices(
     phi: Float,
     h: Float,
     *,
-    sweeps: int = SWEEPS,
+    sweeps: int | None = None,
 ) -> Relaxation:
     """Relax the images of vertices to raise the worst :func:`shape_quality` (collective).
 
@@ -335,6 +355,10 @@ def relax_vertices(
     The relaxed images and background positions, and the moved flags.
     """
     y0, y, xp = y, y.copy(), xp.copy()
+    dim = y.shape[1]
+    if sweeps is None:
+        sweeps = SWEEPS if dim == 2 else SWEEPS_3D
+    gamma_sweeps = GAMMA_SWEEPS if dim == 2 else sweeps
     sub = _Sub(imv, np.flatnonzero(movable))
     verts = sub.vertices
     m = len(verts)
@@ -349,44 +373,58 @@ def relax_vertices(
     ev = csub[cell_idx, corner]
     order = np.lexsort((ev, colour[ev]))
     cell_idx, corner, ev = cell_idx[order], corner[order], ev[order]
-    ea = cells[cell_idx, (corner + 1) % 3]
-    eb = cells[cell_idx, (corner + 2) % 3]
     c = cells[cell_idx]
-    d1, d2 = y[c[:, 1]] - y[c[:, 0]], y[c[:, 2]] - y[c[:, 0]]
-    eo = np.sign(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
-    # Corners a, b in counter-clockwise order (p, a, b) for the kernel; the entries of
-    # degenerate triangles (no orientation to keep) rate -1 whatever the candidate.
-    ea, eb = np.where(eo < 0, eb, ea), np.where(eo < 0, ea, eb)
+    if dim == 2:
+        ea = cells[cell_idx, (corner + 1) % 3]
+        eb = cells[cell_idx, (corner + 2) % 3]
+        d1, d2 = y[c[:, 1]] - y[c[:, 0]], y[c[:, 2]] - y[c[:, 0]]
+        eo = np.sign(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+        # Corners a, b in counter-clockwise order (p, a, b) for the kernel; the entries of
+        # degenerate triangles (no orientation to keep) rate -1 whatever the candidate.
+        ea, eb = np.where(eo < 0, eb, ea), np.where(eo < 0, ea, eb)
+        opposite = [ea, eb]
+    else:
+        # The facet opposite the corner, ordered so that (p, a, b, c) has the cell's
+        # orientation, then made positive (two corners swapped where the cell is negative).
+        eo = np.sign(tet.signed_volumes(y, c))
+        f = c[np.arange(len(c))[:, None], tet.FACETS[corner]]
+        f[eo < 0] = f[eo < 0][:, [0, 2, 1]]
+        opposite = [f[:, 0], f[:, 1], f[:, 2]]
     flat = np.flatnonzero(eo == 0)
     # Edges between two vertices on Gamma (the edges of Gamma_h) may not grow beyond
     # GAMMA_EDGE_MAX h (or their length after M_h, if longer): the same cap seen from both
     # ends, so that it always holds and the ratings stay those of the true triangles.
     pv = verts[ev]
-    caps = []  # per corner (a, b): the cap of each entry's edge p-corner, inf if none
-    for corner_of in (ea, eb):
+    caps = []  # per opposite corner: the cap of each entry's edge p-corner, inf if none
+    for corner_of in opposite:
         cap = np.full(len(ev), np.inf)
         both = np.flatnonzero(on_gamma[pv] & on_gamma[corner_of])
         d = y[pv[both]] - y[corner_of[both]]
-        length = np.hypot(d[:, 0], d[:, 1])  # as in rate(): the current position passes
+        length = _length(d)  # as in rate(): the current position passes
         hmax_e = np.maximum(h[pv[both]], h[corner_of[both]])
         cap[both] = np.maximum(GAMMA_EDGE_MAX * hmax_e, length) * (1.0 + TIE)
         caps.append((corner_of, cap))
 
-    def rate(E: Int, px: Float, py: Float) -> Float:
-        """Qualities of the entries ``E`` with their vertex at ``(px, py)`` ``(len(E), ...)``."""
-        a, b = y[ea[E]], y[eb[E]]
-        lab = np.hypot(b[:, 0] - a[:, 0], b[:, 1] - a[:, 1])
-        col = (slice(None),) + (None,) * (px.ndim - 1)
-        q = _star_quality(
-            px, py, a[col + (0,)], a[col + (1,)], b[col + (0,)], b[col + (1,)], lab[col]
-        )
+    def rate(E: Int, p: Float) -> Float:
+        """Qualities of the entries ``E`` with their vertex at ``p (len(E), ..., dim)``."""
+        col = (slice(None),) + (None,) * (p.ndim - 2)
+        if dim == 2:
+            px, py = p[..., 0], p[..., 1]
+            a, b = y[ea[E]], y[eb[E]]
+            lab = np.hypot(b[:, 0] - a[:, 0], b[:, 1] - a[:, 1])
+            q = _star_quality(
+                px, py, a[col + (0,)], a[col + (1,)], b[col + (0,)], b[col + (1,)], lab[col]
+            )
+        else:
+            face = tet.star_faces(*(y[o[E]] for o in opposite))
+            q = tet.star_quality(p[..., 0], p[..., 1], p[..., 2], face)
         if len(flat):
             q[np.isin(E, flat)] = -1.0
         for corner_of, cap in caps:
             i = np.flatnonzero(cap[E] < np.inf)
             if len(i):
                 c = y[corner_of[E[i]]]
-                d = np.hypot(px[i] - c[col + (0,)], py[i] - c[col + (1,)])
+                d = _length(p[i] - c[col])
                 q[i] = np.where(d > cap[E[i]][col], -1.0, q[i])
         return q
 
@@ -395,18 +433,25 @@ def relax_vertices(
         (slice(bounds[k], bounds[k + 1]), np.flatnonzero(colour == k)) for k in range(ncol)
     ]  # each colour's entries, and its vertices (with or without entries on this rank)
     gamma = np.flatnonzero(on_gamma[verts])
-    tangent = normal[verts[gamma]] @ np.array([[0.0, 1.0], [-1.0, 0.0]])
+    if dim == 2:
+        tangent = normal[verts[gamma]] @ np.array([[0.0, 1.0], [-1.0, 0.0]])
     nrm = normal.copy()  # normals at the current positions of the vertices on Gamma
     step = INITIAL_STEP * h[verts]
     hmax = MAX_STEP * h[verts]
     hmin = MIN_STEP * h[verts]
     steps = np.asarray(STEPS)
     gsteps = np.asarray(GAMMA_STEPS)
-    tangential = np.concatenate([gsteps, -gsteps])[:, None]
-    nc = 1 + DIRECTIONS * len(steps)
+    ndir = DIRECTIONS if dim == 2 else DIRECTIONS_3D
+    if dim == 2:
+        tangential = np.concatenate([gsteps, -gsteps])[:, None]
+        slide_full = np.concatenate([gsteps, gsteps]) == gsteps[0]
+    else:  # SLIDES_3D directions in the tangent plane at each step
+        tangential = np.repeat(gsteps, SLIDES_3D)[:, None]
+        slide_full = tangential[:, 0] == gsteps[0]
+    nc = 1 + ndir * len(steps)
     full_step = np.zeros((2, nc), dtype=bool)  # candidates at the full step: inside, on Gamma
-    full_step[0, 1 : 1 + DIRECTIONS] = True
-    full_step[1, 1 : 1 + len(tangential)] = np.concatenate([gsteps, gsteps]) == gsteps[0]
+    full_step[0, 1 : 1 + ndir] = True
+    full_step[1, 1 : 1 + len(tangential)] = slide_full
     is_gamma = np.zeros(m, dtype=np.int64)
     is_gamma[gamma] = 1
     golden = np.pi * (3.0 - np.sqrt(5.0))
@@ -418,14 +463,16 @@ def relax_vertices(
         # Only vertices with a triangle below ACTIVE_BELOW move in this sweep.
         star = np.full(m, np.inf)
         if len(ev):
-            D = np.flatnonzero(changed[verts[ev]] | changed[ea] | changed[eb])
-            p = y[verts[ev[D]]]
-            qe[D] = rate(D, p[:, 0], p[:, 1])
+            touched = changed[verts[ev]]
+            for o in opposite:
+                touched = touched | changed[o]
+            D = np.flatnonzero(touched)
+            qe[D] = rate(D, y[verts[ev[D]]])
             changed[:] = False
             star[ev[vstart]] = np.minimum.reduceat(qe, vstart)
         # ... and whose compass search has not converged (step below MIN_STEP h).
         active = (sub.reduce(star, "min") < ACTIVE_BELOW) & (step > hmin)
-        if sweep >= GAMMA_SWEEPS:  # the vertices on Gamma have had their sweeps
+        if sweep >= gamma_sweeps:  # the vertices on Gamma have had their sweeps
             active[gamma] = False
         if not comm.allreduce(bool(active[: sub.size_local].any()), op=MPI.LOR):
             break
@@ -438,34 +485,43 @@ def relax_vertices(
             flags = live.astype(np.int32)
             comm.Allreduce(MPI.IN_PLACE, flags, op=MPI.MAX)
             live = flags > 0
-        theta = sweep * golden + 2.0 * np.pi * np.arange(DIRECTIONS) / DIRECTIONS
-        dirs = np.column_stack([np.cos(theta), np.sin(theta)])
-        offsets = np.concatenate([np.zeros((1, 2)), (steps[:, None, None] * dirs).reshape(-1, 2)])
+        if dim == 2:
+            theta = sweep * golden + 2.0 * np.pi * np.arange(DIRECTIONS) / DIRECTIONS
+            dirs = np.column_stack([np.cos(theta), np.sin(theta)])
+        else:
+            dirs = tet.directions(DIRECTIONS_3D, sweep)
+        offsets = np.concatenate(
+            [np.zeros((1, dim)), (steps[:, None, None] * dirs).reshape(-1, dim)]
+        )
         # A vertex's candidates depend on its own position only, which changes only when
         # its colour moves: generate (and project) those of the active vertices at once.
-        cand = y[verts[act]][:, None, :] + step[act, None, None] * offsets[None]  # (na, nc, 2)
+        cand = y[verts[act]][:, None, :] + step[act, None, None] * offsets[None]  # (na, nc, d)
         # Vertices on Gamma: +-tangent steps, projected onto Gamma (the other candidates
         # repeat their current position).
         ga = np.flatnonzero(active[gamma])
         g = gamma[ga]
         cand_n = None  # the normals at the candidates of the vertices on Gamma
         if comm.allreduce(len(g) > 0, op=MPI.LOR):  # (a projection costs ~1 ms even if small)
-            slide = step[g, None, None] * tangential[None] * tangent[ga, None, :]
-            pg = (y[verts[g]][:, None, :] + slide).reshape(-1, 2)
+            if dim == 2:
+                slide = step[g, None, None] * tangential[None] * tangent[ga, None, :]
+            else:  # directions in the tangent plane at the current position
+                tdir = tet.tangent_directions(nrm[verts[g]], SLIDES_3D, sweep)
+                slide = step[g, None, None] * tangential[None] * np.tile(tdir, (1, len(gsteps), 1))
+            pg = (y[verts[g]][:, None, :] + slide).reshape(-1, dim)
             pc, pn = collective_call(comm, "closest-point projection", closest_normal, pg)
+            shape = (len(g), len(tangential), dim)
             cand[row[g]] = y[verts[g]][:, None, :]
-            cand[row[g], 1 : 1 + len(tangential)] = np.reshape(pc, (len(g), len(tangential), 2))
+            cand[row[g], 1 : 1 + len(tangential)] = np.reshape(pc, shape)
             cand_n = np.empty_like(cand)
             cand_n[row[g]] = nrm[verts[g]][:, None, :]
-            cand_n[row[g], 1 : 1 + len(tangential)] = np.reshape(pn, (len(g), len(tangential), 2))
+            cand_n[row[g], 1 : 1 + len(tangential)] = np.reshape(pn, shape)
         moves = 0
         for k in np.flatnonzero(live):
             e, S = groups[k]
             E = e.start + np.flatnonzero(active[ev[e]])
             starts = np.flatnonzero(np.diff(ev[E], prepend=-1))
             S = S[active[S]]
-            p = cand[row[ev[E]]]
-            q = rate(E, p[..., 0], p[..., 1])
+            q = rate(E, cand[row[ev[E]]])
             qmin = np.minimum.reduceat(q, starts, axis=0) if len(starts) else q[:0]
             if sub.map is None:
                 qs, S = qmin, ev[E][starts]

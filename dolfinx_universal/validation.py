@@ -45,10 +45,18 @@ class MeshingError(RuntimeError):
         self.refinable = bool(refinable)
 
 
+def _rows(points: npt.ArrayLike) -> npt.NDArray[np.float64]:
+    """Points as rows ``(n, d)``: 2D points keep 2 columns, 3D points 3 (an empty array or a
+    flat one is read as 2D points)."""
+    p = np.asarray(points, dtype=np.float64)
+    d = p.shape[-1] if p.ndim >= 2 and p.shape[-1] in (2, 3) else 2
+    return p.reshape(-1, d)
+
+
 def where(points: npt.ArrayLike, limit: int = 3) -> str:
-    """Format up to ``limit`` points as ``(x, y)`` for error messages."""
-    p = np.asarray(points, dtype=np.float64).reshape(-1, np.shape(points)[-1])[:, :2]
-    text = ", ".join(f"({a:.6g}, {b:.6g})" for a, b in p[:limit])
+    """Format up to ``limit`` points as ``(x, y)`` or ``(x, y, z)`` for error messages."""
+    p = _rows(points)
+    text = ", ".join("(" + ", ".join(f"{c:.6g}" for c in q) + ")" for q in p[:limit])
     return text + (f" and {len(p) - limit} more" if len(p) > limit else "")
 
 
@@ -89,12 +97,7 @@ def raise_collective(
     # The common case, no problem anywhere, costs one integer reduction, not a gather.
     if comm.size > 1 and comm.allreduce(len(local), op=MPI.MAX) == 0:
         return
-    gathered = comm.allgather(
-        [
-            (p.message, np.asarray(p.points, float).reshape(-1, 2), p.count, p.refinable)
-            for p in local
-        ]
-    )
+    gathered = comm.allgather([(p.message, _rows(p.points), p.count, p.refinable) for p in local])
     merged: dict[str, list] = {}
     for msgs in gathered:
         for message, pts, count, refinable in msgs:
@@ -106,14 +109,20 @@ def raise_collective(
         return
     texts, points, refinable = [], [], True
     for message, (pts, count, ref) in list(merged.items())[:5]:
-        p = np.concatenate(pts) if pts else np.zeros((0, 2))
+        p = _merge(pts)
         texts.append(message.format(count=count, where=where(p)))
         points.append(p)
         refinable &= ref
     text = "\n".join(texts)
     if issubclass(error, MeshingError):
-        raise error(text, np.concatenate(points), refinable)
+        raise error(text, _merge(points), refinable)
     raise error(text)
+
+
+def _merge(parts: list[npt.NDArray[np.float64]]) -> npt.NDArray[np.float64]:
+    """Concatenate the non-empty point arrays (all of one dimension), ``(0, 2)`` if none."""
+    full = [p for p in parts if len(p)]
+    return np.concatenate(full) if full else np.zeros((0, 2))
 
 
 def collective_call(comm: MPI.Comm, what: str, fn: Callable[..., T], *args: Any) -> T:

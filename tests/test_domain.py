@@ -198,7 +198,7 @@ def test_parameter_errors():
     with pytest.raises(ValueError, match="planar triangle meshes"):
         du.conform(line, du.Circle((0, 0), 0.5))
     cube = dmesh.create_unit_cube(comm, 1, 1, 1)
-    with pytest.raises(ValueError, match="planar triangle meshes"):
+    with pytest.raises(ValueError, match="a 2D boundary cannot be meshed on a 3D background"):
         du.conform(cube, du.Circle((0, 0), 0.5))
     # A triangle mesh in 3D (a tilted square).
     import basix.ufl

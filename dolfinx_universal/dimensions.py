@@ -1,0 +1,80 @@
+"""The per-dimension kernels the stages pick by cell type: triangles (2D) and tetrahedra (3D).
+
+Every stage of the pipeline (classification, band and projection, perturbation, Gamma_h,
+``M_h``, relaxation, checks, quality) is one function for both dimensions; what truly
+differs per dimension (cell geometry, the angles that measure quality, the conditioning test,
+the topology of Gamma_h) is looked up here from the background's topological dimension.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from dolfinx import mesh as dmesh
+
+from . import _geometry
+from ._geometry import Float, Int
+
+__all__ = ["CellKernels", "cell_kernels"]
+
+
+@dataclass(frozen=True)
+class CellKernels:
+    """What differs between triangle and tetrahedron backgrounds."""
+
+    tdim: int
+    """Topological (and geometric) dimension."""
+    cell_type: dmesh.CellType
+    """DOLFINx cell type."""
+    name: str
+    """Cell name in messages ("triangle", "tetrahedron")."""
+    facet_name: str
+    """Facet name in messages ("edge", "face")."""
+    signed_measures: Callable[[Float, Int], Float]
+    """Signed areas or volumes ``(m,)`` of cells ``(m, tdim + 1)``, positive when
+    positively oriented."""
+    cell_diameters: Callable[[Float, Int], Float]
+    """Longest edge of each cell ``(m,)``."""
+    angles: Callable[[Float, Int], Float]
+    """The angles that measure quality (radians): interior angles ``(m, 3)`` of triangles,
+    dihedral angles ``(m, 6)`` of tetrahedra."""
+    max_min_angle: float
+    """Smallest angle (degrees) of the regular cell: the largest sensible quality floor."""
+
+
+def _tetrahedra() -> CellKernels:
+    from . import _tetrahedron as tet
+
+    return CellKernels(
+        tdim=3,
+        cell_type=dmesh.CellType.tetrahedron,
+        name="tetrahedron",
+        facet_name="face",
+        signed_measures=tet.signed_volumes,
+        cell_diameters=tet.cell_diameters,
+        angles=tet.dihedral_angles,
+        max_min_angle=float(np.degrees(np.arccos(1.0 / 3.0))),
+    )
+
+
+_TRIANGLES = CellKernels(
+    tdim=2,
+    cell_type=dmesh.CellType.triangle,
+    name="triangle",
+    facet_name="edge",
+    signed_measures=_geometry.signed_areas,
+    cell_diameters=_geometry.cell_diameters,
+    angles=_geometry.interior_angles,
+    max_min_angle=60.0,
+)
+
+
+def cell_kernels(tdim: int) -> CellKernels:
+    """The kernels of triangle (``tdim = 2``) or tetrahedron (``tdim = 3``) meshes."""
+    if tdim == 2:
+        return _TRIANGLES
+    if tdim == 3:
+        return _tetrahedra()
+    raise ValueError(f"universal meshes are triangle or tetrahedron meshes, got tdim = {tdim}")

@@ -1,0 +1,397 @@
+"""Gamma_h of a tetrahedral background: conditioning, repair and the surface's topology.
+
+The per-dimension part of the classification checks for tetrahedra (Rangarajan, Kabaria &
+Lew 2019): the positive faces (the faces opposite the inside vertex of the positively cut
+tetrahedra) must form, for each surface of Gamma, one closed, consistently oriented
+2-manifold with that surface's Euler characteristic, on the domain's side. An interior face
+with its three vertices outside (both tetrahedra beside it kept) is repaired by counting the
+shallower of the two inside vertices as on Gamma. Pure numpy on process-local arrays, except
+:func:`surface_topology`, which is collective.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from mpi4py import MPI
+
+import numpy as np
+import numpy.typing as npt
+
+from ._geometry import Float, Int
+from .validation import Problem, collective_call
+
+if TYPE_CHECKING:
+    from .boundaries import Boundary
+
+__all__ = [
+    "SurfaceParts",
+    "all_outside_faces",
+    "conditioning_dihedral",
+    "surface_parts",
+    "surface_topology",
+]
+
+
+def conditioning_dihedral(x: Float, facets: Int, w: Int) -> Float:
+    """Largest dihedral angle (radians) at the edges of the positive face of each positively
+    cut tetrahedron, ``(m,)``.
+
+    The 3D counterpart of the conditioning angle: the positive face is projected onto the
+    surface, and the tetrahedron stays well shaped when its angles at that face are at
+    most right (acute lattices such as A15 have all dihedral angles below 79 degrees, BCC
+    at most 90).
+
+    Parameters
+    ----------
+    x
+        Vertex coordinates ``(num_vertices, 3)``.
+    facets
+        Positive faces ``(m, 3)``.
+    w
+        Inside vertex of each cell ``(m,)``.
+    """
+    if len(facets) == 0:
+        return np.zeros(0)
+    p = x[facets]  # (m, 3, 3)
+    q = x[w]
+    out = np.zeros(len(facets))
+    for i in range(3):  # the edge (a, b) of the face, c the face's third vertex
+        a, b, c = p[:, i], p[:, (i + 1) % 3], p[:, (i + 2) % 3]
+        e = b - a
+        e = e / np.linalg.norm(e, axis=1, keepdims=True)
+        u = c - a
+        v = q - a
+        u = u - (u * e).sum(axis=1, keepdims=True) * e
+        v = v - (v * e).sum(axis=1, keepdims=True) * e
+        cos = (u * v).sum(axis=1) / (np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1))
+        out = np.maximum(out, np.arccos(np.clip(cos, -1.0, 1.0)))
+    return out
+
+
+def all_outside_faces(
+    s: Float,
+    phi: Float,
+    cells: Int,
+    facets: Int,
+    w: Int,
+    c2v: Int,
+    c2f: Int,
+    f2c_offsets: Int,
+    f2c: Int,
+    kept: npt.NDArray[np.bool_],
+) -> tuple[Int, Int]:
+    """Positive faces whose other tetrahedron is kept too, and the vertex that repairs each.
+
+    Such a face has its three vertices outside with an inside vertex on both sides: the
+    domain is under-resolved there (typically a saddle), and the snapped face would squeeze
+    a tetrahedron between itself and the surface. Counting the shallower of the two inside
+    vertices (the larger ``phi``) as on Gamma removes the face.
+
+    Parameters
+    ----------
+    s, phi
+        Vertex signs and signed distances ``(num_vertices,)``.
+    cells
+        Positively cut cells ``(m,)``; ``facets (m, 3)`` their positive faces and ``w (m,)``
+        their inside vertices.
+    c2v, c2f
+        Cell -> vertex and cell -> face connectivity ``(num_cells, 4)``.
+    f2c_offsets, f2c
+        Face -> cell adjacency list.
+    kept
+        Kept cells ``(num_cells,)``.
+
+    Returns
+    -------
+    rows
+        Indices into ``cells`` of the faces concerned ``(k,)``.
+    vertices
+        The vertex to count as on Gamma for each ``(k,)``.
+    """
+    if len(cells) == 0:
+        return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+    k = np.argmin(s[c2v[cells]], axis=1)  # local facet k is opposite local vertex k
+    f = c2f[cells, k]
+    off = f2c_offsets
+    two = np.flatnonzero(off[f + 1] - off[f] == 2)
+    c0, c1 = f2c[off[f[two]]], f2c[off[f[two]] + 1]
+    other = np.where(c0 == cells[two], c1, c0)
+    rows = two[kept[other]]
+    other = other[kept[other]]
+    ov = c2v[other]
+    in_face = (ov[:, :, None] == facets[rows][:, None, :]).any(axis=2)
+    opposite = ov[~in_face]  # one vertex each
+    mine = w[rows]
+    pick = np.where(phi[opposite] > phi[mine], opposite, mine)
+    return rows, pick
+
+
+@dataclass(frozen=True)
+class SurfaceParts:
+    """The closed surfaces of Gamma, sampled, with what the positive faces must match."""
+
+    points: Float
+    """Samples of Gamma ``(n, 3)``."""
+    labels: Int
+    """Surface of each sample ``(n,)``."""
+    euler: Int
+    """Euler characteristic of each surface ``(num_surfaces,)``."""
+    encloses_domain: npt.NDArray[np.bool_]
+    """Whether the domain lies inside each surface ``(num_surfaces,)``."""
+    expected_pieces: int
+    """Connected pieces of the domain in a box containing Gamma."""
+
+    @property
+    def num_surfaces(self) -> int:
+        return len(self.euler)
+
+
+def surface_parts(boundary: Boundary, n: int = 4096) -> SurfaceParts:
+    """Samples, Euler characteristics and sides of the surfaces of ``boundary``.
+
+    A :class:`~dolfinx_universal.boundaries.Domain` has one surface per component (the
+    container encloses the domain, the bodies do not); any other surface is one component
+    enclosing the domain.
+    """
+    components = getattr(boundary, "components", None)
+    parts = [(boundary, False)] if components is None else components
+    pts, labels, euler, encloses = [], [], [], []
+    for k, (surface, is_body) in enumerate(parts):
+        p = np.asarray(surface.sample(n), dtype=np.float64)
+        pts.append(p)
+        labels.append(np.full(len(p), k))
+        euler.append(int(getattr(surface, "euler_characteristic", 2)))
+        encloses.append(not is_body)
+    lo, hi = np.asarray(boundary.bounding_box(), dtype=np.float64)
+    far = hi + max(float(np.linalg.norm(hi - lo)), 1.0)
+    far_inside = bool(np.asarray(boundary.sign(far[None, :]))[0] < 0)
+    return SurfaceParts(
+        points=np.concatenate(pts),
+        labels=np.concatenate(labels),
+        euler=np.asarray(euler, dtype=np.int64),
+        encloses_domain=np.asarray(encloses, dtype=bool),
+        expected_pieces=int(sum(encloses)) + int(far_inside),
+    )
+
+
+def _components(nodes: int, i: Int, j: Int) -> tuple[int, Int]:
+    """Connected components of the graph with ``nodes`` nodes and edges ``(i, j)``."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    graph = coo_matrix((np.ones(len(i)), (i, j)), shape=(nodes, nodes))
+    count, label = connected_components(graph, directed=False)
+    return int(count), label
+
+
+def surface_topology(
+    comm: MPI.Comm,
+    faces_global: npt.NDArray[np.int64],
+    pa: Float,
+    pb: Float,
+    pc: Float,
+    parts: SurfaceParts,
+    far_kept: bool,
+) -> tuple[list[Problem], int, int]:
+    """Check that the positive faces form one closed oriented surface per surface of Gamma.
+
+    The faces are gathered on rank 0 (their number grows with the surface, not the mesh).
+    Checks: every edge lies in exactly two faces, traversed once each way (closed and
+    consistently oriented); the faces around every vertex form one fan (a 2-manifold);
+    every connected piece follows one surface of Gamma (the nearest surface of all its
+    faces), every surface is followed by exactly one piece with its Euler characteristic;
+    each piece keeps the domain's side (its enclosed volume, from the outward-oriented
+    faces, is positive exactly when the domain lies inside the surface); the kept region
+    has as many pieces as the domain.
+
+    Parameters
+    ----------
+    comm
+        Communicator of the mesh.
+    faces_global
+        Positive faces of this rank's owned positively cut cells as global vertex indices,
+        oriented out of the domain ``(m, 3)``; each face listed by exactly one rank.
+    pa, pb, pc
+        Coordinates of their vertices ``(m, 3)``.
+    parts
+        The surfaces of Gamma (:func:`surface_parts`).
+    far_kept
+        Whether kept cells touch the background's boundary (same on every rank).
+
+    Returns
+    -------
+    problems
+        Problems found, on rank 0 (empty elsewhere).
+    num_surfaces, num_pieces
+        Closed pieces of Gamma_h and connected pieces of the kept region (every rank).
+    """
+    data = comm.gather((faces_global, pa, pb, pc), root=0)
+    result: tuple[list[Problem], int, int] = ([], 0, 0)
+    if comm.rank == 0:
+        assert data is not None
+        result = _topology(data, parts, far_kept)
+    counts = comm.bcast(result[1:], root=0)
+    return result[0], counts[0], counts[1]
+
+
+def _topology(data: list, parts: SurfaceParts, far_kept: bool) -> tuple[list[Problem], int, int]:
+    """:func:`surface_topology` on the gathered faces (rank 0)."""
+    g = np.concatenate([d[0] for d in data]).reshape(-1, 3).astype(np.int64)
+    a, b, c = (np.concatenate([d[k] for d in data]).reshape(-1, 3) for k in (1, 2, 3))
+    nsurf = parts.num_surfaces
+    if len(g) == 0:
+        return (
+            [
+                Problem(
+                    f"Gamma_h is empty: no positive face follows any of the {nsurf} surfaces "
+                    "of the boundary near {where}; the background is too coarse for the "
+                    "domain there; refine near those points",
+                    parts.points[:: max(1, len(parts.points) // 16)],
+                )
+            ],
+            0,
+            int(far_kept),
+        )
+    from scipy.spatial import cKDTree
+
+    problems: list[Problem] = []
+    mid = (a + b + c) / 3.0
+    nodes, inv = np.unique(g, return_inverse=True)
+    f = inv.reshape(-1, 3)
+    nf, nn = len(f), len(nodes)
+    # Directed edges (i -> j) of every face; a closed oriented surface has each edge once
+    # each way.
+    di = f.ravel()
+    dj = f[:, [1, 2, 0]].ravel()
+    face_of = np.repeat(np.arange(nf), 3)
+    key = np.minimum(di, dj) * nn + np.maximum(di, dj)
+    sign = np.where(di < dj, 1, -1)
+    ukey, einv, ecount = np.unique(key, return_inverse=True, return_counts=True)
+    balance = np.bincount(einv, sign, minlength=len(ukey))
+    bad_edge = (ecount != 2) | (balance != 0)
+    if bad_edge.any():
+        e = np.flatnonzero(bad_edge[einv])
+        problems.append(
+            Problem(
+                "the positive faces do not form a closed, consistently oriented surface at "
+                "{count} edges near {where}: the background is too coarse for the surface's "
+                "curvature or for the gap between its parts there; refine near them",
+                mid[face_of[e]],
+                int(bad_edge.sum()),
+            )
+        )
+    # Pieces: faces joined through shared edges.
+    order = np.argsort(einv, kind="stable")
+    se = einv[order]
+    same = np.flatnonzero(se[1:] == se[:-1])
+    npieces, piece = _components(nf, face_of[order][same], face_of[order][same + 1])
+    # Manifold vertices: the faces around a vertex form one fan (its link is connected).
+    corner_v = f.ravel()
+    corner_face = face_of
+    # link edges at vertex v: the opposite edge of each face at v, as nodes (v, u)
+    opp1 = f[:, [1, 2, 0]].ravel()
+    opp2 = f[:, [2, 0, 1]].ravel()
+    lk1 = corner_v * nn + opp1
+    lk2 = corner_v * nn + opp2
+    lnodes, linv = np.unique(np.concatenate([lk1, lk2]), return_inverse=True)
+    m = len(lk1)
+    nlink, llabel = _components(len(lnodes), linv[:m], linv[m:])
+    owner = lnodes // nn
+    fans = np.bincount(np.unique(owner * nlink + llabel) // nlink, minlength=nn)
+    pinched = np.flatnonzero(fans > 1)
+    if len(pinched):
+        at = np.isin(corner_v, pinched)
+        problems.append(
+            Problem(
+                "the positive faces pinch at {count} vertices near {where} (two sheets of "
+                "Gamma_h touch): a gap or thin part is not resolved there; refine near them",
+                mid[corner_face[at]],
+                len(pinched),
+            )
+        )
+    # Euler characteristic and surface of each piece.
+    v_piece = np.zeros(nn, dtype=np.int64)
+    v_piece[f.ravel()] = np.repeat(piece, 3)
+    e_piece = np.zeros(len(ukey), dtype=np.int64)
+    e_piece[einv] = piece[face_of]
+    chi = (
+        np.bincount(v_piece, minlength=npieces)
+        - np.bincount(e_piece, minlength=npieces)
+        + np.bincount(piece, minlength=npieces)
+    )
+    surface = parts.labels[cKDTree(parts.points).query(mid)[1]]
+    votes = np.zeros((npieces, nsurf), dtype=np.int64)
+    np.add.at(votes, (piece, surface), 1)
+    main = votes.argmax(axis=1)
+    mixed = surface != main[piece]
+    if mixed.any():
+        problems.append(
+            Problem(
+                "Gamma_h joins different surfaces of the boundary near {where}: the gap "
+                "between them is not resolved by the background; refine to below the gap "
+                "there",
+                mid[mixed],
+                int(mixed.sum()),
+            )
+        )
+    per_surface = np.bincount(main, minlength=nsurf)
+    for k in np.flatnonzero(per_surface != 1):
+        pts = parts.points[parts.labels == k]
+        if per_surface[k] == 0:
+            text = (
+                f"surface {k} of the boundary is lost: no piece of Gamma_h follows it (a body "
+                "or feature smaller than the background's cells); refine the background "
+                "near it (places: {where})"
+            )
+        else:
+            text = (
+                f"surface {k} of the boundary is split into {per_surface[k]} pieces of "
+                "Gamma_h: a neck or thin part is narrower than the background's cells near "
+                "{where}; refine the background there"
+            )
+            pts = mid[np.isin(piece, np.flatnonzero(main == k))]
+        problems.append(Problem(text, pts))
+    wrong_chi = np.flatnonzero(chi != parts.euler[main])
+    for k in wrong_chi:
+        problems.append(
+            Problem(
+                f"the piece of Gamma_h following surface {int(main[k])} has Euler "
+                f"characteristic {int(chi[k])} where the surface has {int(parts.euler[main[k]])}"
+                " (a handle or hole of the surface is not resolved, or a spurious one appears) "
+                "near {where}: refine the background there",
+                mid[piece == k],
+            )
+        )
+    # Enclosed volume of each piece (divergence theorem, faces oriented out of the domain).
+    vol = np.bincount(piece, (a * np.cross(b, c)).sum(axis=1), minlength=npieces) / 6.0
+    inside = vol > 0
+    wrong = inside != parts.encloses_domain[main]
+    for k in np.flatnonzero(wrong):
+        problems.append(
+            Problem(
+                f"Gamma_h around surface {int(main[k])} keeps the wrong side of it near "
+                "{where}: the background is too coarse for the domain there; refine near it",
+                mid[piece == k],
+            )
+        )
+    pieces = int(inside.sum()) + int(far_kept)
+    if not problems and pieces != parts.expected_pieces:
+        problems.append(
+            Problem(
+                f"the kept tetrahedra form {pieces} connected pieces where the domain has "
+                f"{parts.expected_pieces}, near {{where}}: refine the background near them",
+                mid,
+            )
+        )
+    return problems, npieces, pieces
+
+
+def sampled_parts(comm: MPI.Comm, boundary: Boundary, spacing: float) -> SurfaceParts:
+    """:func:`surface_parts` with about one sample per ``spacing**2`` of area, at least 4096
+    per surface (collective: a failure of the boundary's sampler is raised on every rank)."""
+    lo, hi = np.asarray(boundary.bounding_box(), dtype=np.float64)
+    extent = float(np.max(hi - lo))
+    n = int(min(max(4096, 4.0 * np.pi * (extent / max(spacing, 1e-300)) ** 2), 400_000))
+    return collective_call(comm, "sampling the boundary", surface_parts, boundary, n)
