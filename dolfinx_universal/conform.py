@@ -447,7 +447,12 @@ class UniversalMesh:
         # Containment first: a domain leaving the background also breaks Gamma_h there, and
         # "refine" would point the wrong way.
         cells = near_cells.astype(np.int32)
-        raise_collective(comm, containment_problems(self._locator, boundary, cells, comm))
+        if self.tdim == 2:  # the locator of all cells, cached for moving domains
+            locator = self._locator
+        else:  # in 3D the band's cells are a small share of the background: only those
+            locator = CellLocator(self._x, self._c2v[cells])
+            cells = np.arange(len(cells), dtype=np.int32)
+        raise_collective(comm, containment_problems(locator, boundary, cells, comm))
         problems, theta = classification_problems(
             xp, s, phi, pe, self._c2v, self._c2f, self._f2c_offsets, self._f2c, imv.size_local,
             self._x,

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TypeVar
 
 from mpi4py import MPI
 
@@ -182,9 +184,10 @@ def default_box(boundary: Boundary, h: float, relaxation_factor: float = 3.0) ->
 
     Returns
     -------
-    ``[[x_min, y_min], [x_max, y_max]]``, ``(2, 2)``.
+    ``[[x_min, y_min], [x_max, y_max]]``, ``(2, gdim)``.
     """
-    bbox = np.asarray(boundary.bounding_box(), dtype=np.float64).reshape(2, 2)
+    bbox = np.asarray(boundary.bounding_box(), dtype=np.float64)
+    bbox = bbox.reshape(2, bbox.size // 2)
     margin = (relaxation_factor + 2.0) * h
     return np.array([bbox[0] - margin, bbox[1] + margin])
 
@@ -244,20 +247,9 @@ def size_from_geometry(
     MeshingError
         Overlapping components, or a boundary leaving the given box (not refinable).
     """
-    result: object = None
-    if comm.rank == 0:
-        try:
-            result = _sizing(boundaries, h, degree, box, relaxation_factor, size_factor)
-        except (MeshingError, ValueError) as e:
-            result = e
-        except Exception as e:  # a user callback failing: the same error on every rank
-            result = MeshingError(
-                f"sizing the boundary failed: {type(e).__name__}: {e}", refinable=False
-            )
-    result = comm.bcast(result, root=0)
-    if isinstance(result, Exception):
-        raise result
-    return result  # type: ignore[return-value]
+    return _on_root(
+        comm, lambda: _sizing(boundaries, h, degree, box, relaxation_factor, size_factor)
+    )
 
 
 def _sizing(
@@ -390,39 +382,22 @@ def mesh_domain(
     timings = {"sizing": 0.0, "background": 0.0, "conform": 0.0, "curved": 0.0}
 
     t = time.perf_counter()
-    box_arr, field_, feature, rho = size_from_geometry(
-        comm,
-        [boundary],
-        h,
-        degree=degree,
-        box=box,
-        relaxation_factor=relaxation_factor,
-        size_factor=size_factor,
-    )
-    points = field_.points
+    plan: _Plan
+    if getattr(boundary, "gdim", 2) == 3 and degree > 1:
+        raise ValueError(
+            "curved tetrahedra (degree > 1) are not available yet: use degree=1 for surfaces"
+        )
+    if getattr(boundary, "gdim", 2) == 3:
+        plan = _UniformPlan.create(comm, boundary, h, degree, box, relaxation_factor, size_factor)
+    else:
+        plan = _GradedPlan.create(comm, boundary, h, degree, box, relaxation_factor, size_factor)
     timings["sizing"] += time.perf_counter() - t
 
     rounds: list[str] = []
     while True:
-        current = field_(points)
-        estimate = _estimate_cells(points, current, box_arr, h)
-        if estimate > max_cells:
-            i = int(np.argmin(current))
-            raise MeshingError(
-                f"the geometry asks for about {estimate:.3g} background cells (more than "
-                f"max_cells = {max_cells:.3g}): the smallest size needed is "
-                f"{current[i]:.3g} near {where(points[i : i + 1])}"
-                + (
-                    f" after {len(rounds)} refinement rounds ({'; '.join(rounds)})"
-                    if rounds
-                    else ""
-                )
-                + "; raise max_cells or simplify the geometry there",
-                points[i : i + 1],
-                refinable=False,
-            )
+        plan.check_size(max_cells, rounds)
         t = time.perf_counter()
-        background = graded_mesh(comm, box_arr, field_, max_size=h, root_size=h / EDGE_FACTOR)
+        background = plan.background(comm)
         timings["background"] += time.perf_counter() - t
         try:
             t = time.perf_counter()
@@ -431,7 +406,7 @@ def mesh_domain(
                 boundary,
                 eta=eta,
                 relaxation_factor=relaxation_factor,
-                local_size=True,
+                local_size=plan.local_size,
                 min_angle=min_angle,
                 on_low_quality="raise",
                 relax=relax,
@@ -454,18 +429,19 @@ def mesh_domain(
                     refinable=False,
                 ) from None
             rounds.append(f"round {len(rounds) + 1}: {_short(first)}")
-            field_ = field_.refined(e.points, 0.5 * field_(e.points))
+            plan.refine(e.points)
 
     jac = curved.min_jacobian_ratio if curved is not None else 1.0
     quality = quality_report(cm)
-    hvals = field_(points)
+    hvals = plan.sizes()
     size_used = comm.allreduce(float(hvals.min()), op=MPI.MIN)
     msh = curved.mesh if curved is not None else cm.mesh
     tags = curved.facet_tags if curved is not None else cm.facet_tags
+    tdim = msh.topology.dim
     certificate = Certificate(
         max_conditioning_angle_deg=cm.max_conditioning_angle,
-        min_feature_over_h=float(np.min(feature / hvals)),
-        min_curvature_radius_over_h=float(np.min(rho / hvals)),
+        min_feature_over_h=float(np.min(plan.feature / hvals)),
+        min_curvature_radius_over_h=float(np.min(plan.rho / hvals)),
         min_jacobian_ratio=float(jac),
         min_angle_deg=float(quality["theta_min_deg"]),
         max_angle_deg=float(quality["theta_max_deg"]),
@@ -476,14 +452,201 @@ def mesh_domain(
         refinements=tuple(rounds),
         h_max=h,
         h_min=size_used,
-        num_cells=msh.topology.index_map(2).size_global,
-        num_background_cells=background.topology.index_map(2).size_global,
+        num_cells=msh.topology.index_map(tdim).size_global,
+        num_background_cells=background.topology.index_map(tdim).size_global,
         degree=degree,
         map=map,
     )
     timings["total"] = time.perf_counter() - t_start
     timings = {k: comm.allreduce(v, op=MPI.MAX) for k, v in timings.items()}
     return MeshedDomain(msh, tags, certificate, cm, curved, timings)
+
+
+class _Plan:
+    """The background of :func:`mesh_domain` and how it is refined where a check fails."""
+
+    points: Float
+    """Samples of Gamma where sizes are checked ``(n, gdim)``."""
+    feature: Float
+    """Local feature sizes at ``points`` ``(n,)``."""
+    rho: Float
+    """Radii of curvature at ``points`` ``(n,)``."""
+    local_size: bool
+    """Whether the background is graded (``local_size`` of the conforming step)."""
+
+    def sizes(self) -> Float:
+        """Background size at ``points`` ``(n,)``."""
+        raise NotImplementedError
+
+    def estimate(self) -> float:
+        """Rough number of background cells."""
+        raise NotImplementedError
+
+    def background(self, comm: MPI.Comm) -> dmesh.Mesh:
+        """Build the background (collective)."""
+        raise NotImplementedError
+
+    def refine(self, places: Float) -> None:
+        """Halve the size around ``places`` ``(k, gdim)``."""
+        raise NotImplementedError
+
+    def check_size(self, max_cells: float, rounds: list[str]) -> None:
+        """Raise when the background would exceed ``max_cells``."""
+        estimate = self.estimate()
+        if estimate <= max_cells:
+            return
+        current = self.sizes()
+        i = int(np.argmin(current))
+        raise MeshingError(
+            f"the geometry asks for about {estimate:.3g} background cells (more than "
+            f"max_cells = {max_cells:.3g}): the smallest size needed is "
+            f"{current[i]:.3g} near {where(self.points[i : i + 1])}"
+            + (f" after {len(rounds)} refinement rounds ({'; '.join(rounds)})" if rounds else "")
+            + "; raise max_cells or simplify the geometry there",
+            self.points[i : i + 1],
+            refinable=False,
+        )
+
+
+class _GradedPlan(_Plan):
+    """Triangles: a graded acute quadtree background sized by a field refined locally."""
+
+    local_size = True
+
+    def __init__(self, box: Float, field_: SizeField, feature: Float, rho: Float, h: float):
+        self.box, self.field, self.feature, self.rho, self.h = box, field_, feature, rho, h
+        self.points = field_.points
+
+    @classmethod
+    def create(
+        cls,
+        comm: MPI.Comm,
+        boundary: Boundary,
+        h: float,
+        degree: int,
+        box: npt.ArrayLike | None,
+        relaxation_factor: float,
+        size_factor: float | None,
+    ) -> _GradedPlan:
+        box_arr, field_, feature, rho = size_from_geometry(
+            comm,
+            [boundary],
+            h,
+            degree=degree,
+            box=box,
+            relaxation_factor=relaxation_factor,
+            size_factor=size_factor,
+        )
+        return cls(box_arr, field_, feature, rho, h)
+
+    def sizes(self) -> Float:
+        return self.field(self.points)
+
+    def estimate(self) -> float:
+        return _estimate_cells(self.points, self.sizes(), self.box, self.h)
+
+    def background(self, comm: MPI.Comm) -> dmesh.Mesh:
+        return graded_mesh(
+            comm, self.box, self.field, max_size=self.h, root_size=self.h / EDGE_FACTOR
+        )
+
+    def refine(self, places: Float) -> None:
+        self.field = self.field.refined(places, 0.5 * self.field(places))
+
+
+class _UniformPlan(_Plan):
+    """Tetrahedra: a uniform A15 background (acute, every dihedral angle in [53, 79]
+    degrees) of the smallest target size near Gamma, halved where a check fails."""
+
+    local_size = False
+
+    def __init__(self, box: Float, size: float, points: Float, feature: Float, rho: Float):
+        self.box, self.size = box, size
+        self.points, self.feature, self.rho = points, feature, rho
+
+    @classmethod
+    def create(
+        cls,
+        comm: MPI.Comm,
+        boundary: Boundary,
+        h: float,
+        degree: int,
+        box: npt.ArrayLike | None,
+        relaxation_factor: float,
+        size_factor: float | None,
+    ) -> _UniformPlan:
+        def sizing() -> tuple[Float, float, Float, Float]:
+            from .sizing_3d import surface_feature_size
+
+            check_components(boundary)
+            sf = surface_feature_size(boundary, 0.25 * h)
+            target = target_sizes(sf.feature, h, degree, size_factor)
+            size = float(target.min())
+            box_arr = _checked_box(boundary, sf.points, size, box, relaxation_factor)
+            rho = np.full(len(sf.points), float(boundary.min_radius_of_curvature()))
+            return box_arr, size, sf.points, sf.feature, rho
+
+        box_arr, size, points, feature, rho = _on_root(comm, sizing)
+        return cls(box_arr, size, points, feature, rho)
+
+    def sizes(self) -> Float:
+        return np.full(len(self.points), self.size)
+
+    def estimate(self) -> float:
+        # A15 of size h: 2 vertices and 11.5 tetrahedra per h^3
+        return float(np.prod(self.box[1] - self.box[0])) * 11.5 / self.size**3
+
+    def background(self, comm: MPI.Comm) -> dmesh.Mesh:
+        from .background_tet import a15_mesh
+
+        return a15_mesh(comm, self.box, self.size)
+
+    def refine(self, places: Float) -> None:
+        self.size *= 0.5
+
+
+def _checked_box(
+    boundary: Boundary,
+    points: Float,
+    size: float,
+    box: npt.ArrayLike | None,
+    relaxation_factor: float,
+) -> Float:
+    """The default box for ``size``, or the given box once it contains ``points``."""
+    if box is None:
+        return default_box(boundary, size, relaxation_factor)
+    d = points.shape[1]
+    box_arr = np.asarray(box, dtype=np.float64).reshape(2, d)
+    out = ~((points > box_arr[0]).all(axis=1) & (points < box_arr[1]).all(axis=1))
+    if out.any():
+        raise MeshingError(
+            f"the domain's boundary leaves the given box {box_arr.tolist()} near "
+            f"{where(points[out])}: enlarge the box",
+            points[out],
+            refinable=False,
+        )
+    return box_arr
+
+
+T = TypeVar("T")
+
+
+def _on_root(comm: MPI.Comm, fn: Callable[[], T]) -> T:
+    """``fn()`` computed on rank 0 and broadcast; its errors raised on every rank."""
+    result: object = None
+    if comm.rank == 0:
+        try:
+            result = fn()
+        except (MeshingError, ValueError) as e:
+            result = e
+        except Exception as e:  # a user callback failing: the same error on every rank
+            result = MeshingError(
+                f"sizing the boundary failed: {type(e).__name__}: {e}", refinable=False
+            )
+    result = comm.bcast(result, root=0)
+    if isinstance(result, Exception):
+        raise result
+    return result  # type: ignore[return-value]
 
 
 def _short(text: str, n: int = 160) -> str:

@@ -137,7 +137,10 @@ class SurfaceParts:
     labels: Int
     """Surface of each sample ``(n,)``."""
     euler: Int
-    """Euler characteristic of each surface ``(num_surfaces,)``."""
+    """Euler characteristic of each surface (of all its pieces) ``(num_surfaces,)``."""
+    pieces: Int
+    """Connected pieces of each surface ``(num_surfaces,)`` (an implicit surface may have
+    several)."""
     encloses_domain: npt.NDArray[np.bool_]
     """Whether the domain lies inside each surface ``(num_surfaces,)``."""
     expected_pieces: int
@@ -157,12 +160,13 @@ def surface_parts(boundary: Boundary, n: int = 4096) -> SurfaceParts:
     """
     components = getattr(boundary, "components", None)
     parts = [(boundary, False)] if components is None else components
-    pts, labels, euler, encloses = [], [], [], []
+    pts, labels, euler, pieces, encloses = [], [], [], [], []
     for k, (surface, is_body) in enumerate(parts):
         p = np.asarray(surface.sample(n), dtype=np.float64)
         pts.append(p)
         labels.append(np.full(len(p), k))
         euler.append(int(getattr(surface, "euler_characteristic", 2)))
+        pieces.append(int(getattr(surface, "num_components", 1)))
         encloses.append(not is_body)
     lo, hi = np.asarray(boundary.bounding_box(), dtype=np.float64)
     far = hi + max(float(np.linalg.norm(hi - lo)), 1.0)
@@ -171,8 +175,9 @@ def surface_parts(boundary: Boundary, n: int = 4096) -> SurfaceParts:
         points=np.concatenate(pts),
         labels=np.concatenate(labels),
         euler=np.asarray(euler, dtype=np.int64),
+        pieces=np.asarray(pieces, dtype=np.int64),
         encloses_domain=np.asarray(encloses, dtype=bool),
-        expected_pieces=int(sum(encloses)) + int(far_inside),
+        expected_pieces=int(sum(p for p, e in zip(pieces, encloses) if e)) + int(far_inside),
     )
 
 
@@ -337,13 +342,19 @@ def _topology(data: list, parts: SurfaceParts, far_kept: bool) -> tuple[list[Pro
             )
         )
     per_surface = np.bincount(main, minlength=nsurf)
-    for k in np.flatnonzero(per_surface != 1):
+    for k in np.flatnonzero(per_surface != parts.pieces):
         pts = parts.points[parts.labels == k]
         if per_surface[k] == 0:
             text = (
                 f"surface {k} of the boundary is lost: no piece of Gamma_h follows it (a body "
                 "or feature smaller than the background's cells); refine the background "
                 "near it (places: {where})"
+            )
+        elif per_surface[k] < parts.pieces[k]:
+            text = (
+                f"surface {k} of the boundary has {parts.pieces[k]} pieces but Gamma_h "
+                f"follows it with {per_surface[k]}: pieces of it are joined or lost near "
+                "{where}; refine the background there"
             )
         else:
             text = (
@@ -353,15 +364,15 @@ def _topology(data: list, parts: SurfaceParts, far_kept: bool) -> tuple[list[Pro
             )
             pts = mid[np.isin(piece, np.flatnonzero(main == k))]
         problems.append(Problem(text, pts))
-    wrong_chi = np.flatnonzero(chi != parts.euler[main])
-    for k in wrong_chi:
+    chi_surface = np.bincount(main, chi, minlength=nsurf).astype(np.int64)
+    for k in np.flatnonzero((chi_surface != parts.euler) & (per_surface == parts.pieces)):
         problems.append(
             Problem(
-                f"the piece of Gamma_h following surface {int(main[k])} has Euler "
-                f"characteristic {int(chi[k])} where the surface has {int(parts.euler[main[k]])}"
-                " (a handle or hole of the surface is not resolved, or a spurious one appears) "
-                "near {where}: refine the background there",
-                mid[piece == k],
+                f"Gamma_h following surface {k} has Euler characteristic {chi_surface[k]} "
+                f"where the surface has {int(parts.euler[k])} (a handle or hole of the "
+                "surface is not resolved, or a spurious one appears) near {where}: refine "
+                "the background there",
+                mid[np.isin(piece, np.flatnonzero(main == k))],
             )
         )
     # Enclosed volume of each piece (divergence theorem, faces oriented out of the domain).
