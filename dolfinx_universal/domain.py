@@ -575,7 +575,7 @@ class _UniformPlan(_Plan):
         relaxation_factor: float,
         size_factor: float | None,
     ) -> _UniformPlan:
-        def sizing() -> tuple[Float, float, Float, Float]:
+        def sizing() -> tuple[Float, float, Float, Float, Float]:
             from .sizing_3d import surface_feature_size
 
             check_components(boundary)
@@ -599,7 +599,7 @@ class _UniformPlan(_Plan):
     def background(self, comm: MPI.Comm) -> dmesh.Mesh:
         from .background_tet import a15_mesh
 
-        return a15_mesh(comm, self.box, self.size)
+        return a15_mesh(comm, self.box.tolist(), self.size)
 
     def refine(self, places: Float) -> None:
         self.size *= 0.5
