@@ -100,7 +100,7 @@ TARGET_RADIUS_RATIO = 2.6
 _ANGLE_SCALE = 1.0 / np.sin(np.radians(TARGET_ANGLE))
 _RADIUS_SCALE = TARGET_RADIUS_RATIO / 2.0
 _MAX_COLOURS = 62
-DIRECTIONS_3D = 12
+DIRECTIONS_3D = 8
 """Tetrahedra: directions per vertex and sweep (a Fibonacci sphere turned from sweep to
 sweep)."""
 SLIDES_3D = 6
@@ -131,7 +131,8 @@ def _length(d: Float) -> Float:
     """Euclidean lengths of vectors ``(..., dim)`` (``np.hypot`` in 2D, as before)."""
     if d.shape[-1] == 2:
         return np.hypot(d[..., 0], d[..., 1])
-    return np.sqrt((d * d).sum(axis=-1))
+    x, y, z = d[..., 0], d[..., 1], d[..., 2]
+    return np.sqrt(x * x + y * y + z * z)
 
 
 def shape_quality(p: Float, a: Float, b: Float, orientation: Float) -> Float:
