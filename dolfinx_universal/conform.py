@@ -350,6 +350,8 @@ class UniversalMesh:
         elif not (alpha_min - 1e-12 <= alpha <= 1.0):
             raise ValueError(f"alpha must lie in [(1 + h/R_r)^-1, 1] = [{alpha_min:.4g}, 1]")
         self.alpha = float(alpha)
+        # the inward push of the band's inside vertices by M_h (0: snap only)
+        self._push = self.alpha if kernels.inward_push else 0.0
         fdim = tdim - 1
         for a, b in ((tdim, fdim), (fdim, tdim), (fdim, 0), (0, tdim)):
             topo.create_connectivity(a, b)
@@ -399,7 +401,7 @@ class UniversalMesh:
             boundary, xp, s, phi, pe, band, near_cells
         )
         y, moved = map_band(
-            x, xp, phi, closest, normal, pe.on_gamma, self.h, self.R_r, self.alpha, band
+            x, xp, phi, closest, normal, pe.on_gamma, self.h, self.R_r, self._push, band
         )
         raise_collective(
             comm,

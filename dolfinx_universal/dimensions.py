@@ -42,6 +42,12 @@ class CellKernels:
     dihedral angles ``(m, 6)`` of tetrahedra."""
     max_min_angle: float
     """Smallest angle (degrees) of the regular cell: the largest sensible quality floor."""
+    inward_push: bool
+    """Whether ``M_h`` pushes the band's inside vertices inwards by up to ``alpha h``
+    (triangles: Rangarajan & Lew 2014). Tetrahedra: ``M_h`` only snaps the vertices of the
+    positive faces; pushing the others as well inverts tetrahedra where Gamma curves
+    within a few ``h`` (a torus tube 1.4 h thick, a body of radius 2 h), and the vertex
+    relaxation moves them afterwards."""
 
 
 def _tetrahedra() -> CellKernels:
@@ -56,6 +62,7 @@ def _tetrahedra() -> CellKernels:
         cell_diameters=tet.cell_diameters,
         angles=tet.dihedral_angles,
         max_min_angle=float(np.degrees(np.arccos(1.0 / 3.0))),
+        inward_push=False,
     )
 
 
@@ -68,6 +75,7 @@ _TRIANGLES = CellKernels(
     cell_diameters=_geometry.cell_diameters,
     angles=_geometry.interior_angles,
     max_min_angle=60.0,
+    inward_push=True,
 )
 
 
