@@ -1,14 +1,22 @@
-"""Quality of conforming meshes: angles, radius ratios, edge ratios, what was altered."""
+"""Quality of conforming meshes: angles, radius ratios, edge ratios, what was altered.
+
+One report for both dimensions (:func:`quality_report`): the counts of cells kept, cut and
+unaltered are common; the shape figures are those of the cells, picked by the number of
+vertices per cell: interior angles, radius ratios and edge ratios of triangles; dihedral
+angles, radius and mean ratios of tetrahedra
+(:func:`~dolfinx_universal._tetrahedron.quality_summary`).
+"""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from mpi4py import MPI
 
 import numpy as np
 import numpy.typing as npt
 
+from . import _tetrahedron
 from ._geometry import edge_lengths, interior_angles, signed_areas
 from .classify import positively_cut
 
@@ -16,6 +24,10 @@ if TYPE_CHECKING:
     from .conform import ConformingMesh
 
 __all__ = ["background_positions", "cell_quality", "edge_ratio", "quality_report", "radius_ratio"]
+
+QualityReport = dict[str, Any]
+"""The figures of :func:`quality_report`: ints and floats (and, for tetrahedra, the
+dihedral angle histogram as a list of ints)."""
 
 
 def edge_ratio(x: npt.NDArray[np.float64], cells: npt.NDArray) -> npt.NDArray[np.float64]:
@@ -34,35 +46,45 @@ def radius_ratio(x: npt.NDArray[np.float64], cells: npt.NDArray) -> npt.NDArray[
     return circum / inr
 
 
-def quality_report(cm: ConformingMesh) -> dict[str, float | int]:
+def quality_report(cm: ConformingMesh) -> QualityReport:
     """Global quality figures of a conforming mesh (collective).
 
     Returns
     -------
-    A dict with ``n_cells`` (triangles kept), ``n_positively_cut``, ``n_unaltered`` (no vertex
-    moved), ``percent_unaltered``, ``theta_min_deg``, ``theta_max_deg``, ``q_max`` (max
-    circumradius/inradius), ``Q3_max``, ``Q2_max``, ``Q1_max`` (max longest/shortest edge
-    over triangles with 3, 2 and 1 vertices inside the domain; 0 when there are none),
-    ``n_inverted`` and ``min_area_ratio`` (conforming area over the area of the triangle in
-    the original background: the relaxation may move ``background_x`` of the vertices on
-    Gamma, the orientation is checked against the background itself).
+    A dict with, in both dimensions: ``n_cells`` (cells kept), ``n_positively_cut``,
+    ``n_unaltered`` (no vertex moved), ``percent_unaltered``, ``theta_min_deg`` and
+    ``theta_max_deg`` (smallest and largest angle: interior angles of triangles, dihedral
+    angles of tetrahedra) and ``n_inverted`` (cells whose orientation differs from that of
+    the cell in the original background: the relaxation may move ``background_x`` of the
+    vertices on Gamma, the orientation is checked against the background itself).
+
+    Triangles add ``q_max`` (max circumradius/inradius), ``Q3_max``, ``Q2_max``, ``Q1_max``
+    (max longest/shortest edge over triangles with 3, 2 and 1 vertices inside the domain; 0
+    when there are none) and ``min_area_ratio`` (conforming area over the area of the
+    triangle in the background).
+
+    Tetrahedra add ``dihedral_histogram`` (counts of the dihedral angles in the 18 bins of
+    10 degrees over [0, 180], a list of ints), ``radius_ratio_min`` (``3 r_in / R_circ``, 1
+    for the regular tetrahedron), ``mean_ratio_min`` (signed by the background's orientation)
+    and ``min_volume_ratio`` (conforming volume over the background tetrahedron's volume).
     """
-    nco = cm.mesh.topology.index_map(2).size_local
+    nco = cm.mesh.topology.index_map(cm.mesh.topology.dim).size_local
     return cell_quality(
         cm.mesh.comm, cm.x, background_positions(cm), cm.cells[:nco], cm.sign, cm.moved
     )
 
 
 def background_positions(cm: ConformingMesh) -> npt.NDArray[np.float64]:
-    """Original background positions of the vertices of ``cm``, ``(num_vertices, 2)``."""
+    """Original background positions of the vertices of ``cm``, ``(num_vertices, tdim)``."""
     bg = cm.background
     topo = bg.topology
-    topo.create_connectivity(2, 0)
-    c2v = topo.connectivity(2, 0).array.reshape(-1, 3)
+    tdim = topo.dim
+    topo.create_connectivity(tdim, 0)
+    c2v = topo.connectivity(tdim, 0).array.reshape(-1, tdim + 1)
     imv = topo.index_map(0)
     v2n = np.empty(imv.size_local + imv.num_ghosts, dtype=np.int32)
-    v2n[c2v] = bg.geometry.dofmaps[0][:, :3]
-    return bg.geometry.x[v2n[cm.vertex_map], :2]
+    v2n[c2v] = bg.geometry.dofmaps[0][:, : tdim + 1]
+    return bg.geometry.x[v2n[cm.vertex_map], :tdim]
 
 
 def cell_quality(
@@ -72,20 +94,41 @@ def cell_quality(
     cells: npt.NDArray,
     sign: npt.NDArray[np.float64],
     moved: npt.NDArray[np.bool_],
-) -> dict[str, float | int]:
-    """The figures of :func:`quality_report` for given (owned) triangles (collective).
+) -> QualityReport:
+    """The figures of :func:`quality_report` for given (owned) cells (collective).
 
     Parameters
     ----------
     comm
         Communicator to reduce over.
     x, background_x
-        Conforming and background vertex positions ``(num_vertices, 2)``.
+        Conforming and background vertex positions ``(num_vertices, tdim)``.
     cells
-        Owned triangles ``(m, 3)`` to report on.
+        Owned triangles ``(m, 3)`` or tetrahedra ``(m, 4)`` to report on (every rank
+        passes cells of one kind, possibly none).
     sign, moved
         Vertex signs and moved flags ``(num_vertices,)``.
     """
+    cells = np.asarray(cells)
+    shape = _tetrahedra if cells.shape[1] == 4 else _triangles
+    report = {
+        "n_cells": comm.allreduce(len(cells), op=MPI.SUM),
+        "n_positively_cut": comm.allreduce(int(positively_cut(sign, cells).sum()), op=MPI.SUM),
+        "n_unaltered": comm.allreduce(int((~moved[cells].any(axis=1)).sum()), op=MPI.SUM),
+    }
+    report.update(shape(comm, x, background_x, cells, sign))
+    report["percent_unaltered"] = 100.0 * report["n_unaltered"] / max(report["n_cells"], 1)
+    return report
+
+
+def _triangles(
+    comm: MPI.Comm,
+    x: npt.NDArray[np.float64],
+    background_x: npt.NDArray[np.float64],
+    cells: npt.NDArray,
+    sign: npt.NDArray[np.float64],
+) -> QualityReport:
+    """Angle, radius ratio, edge ratio and area figures of triangles (reduced)."""
     ang = np.degrees(interior_angles(x, cells))
     inside = (sign[cells] < 0).sum(axis=1)
     Q = edge_ratio(x, cells)
@@ -97,10 +140,7 @@ def cell_quality(
     def red(value, op, empty):
         return comm.allreduce(value if len(cells) else empty, op=op)
 
-    report: dict[str, float | int] = {
-        "n_cells": red(len(cells), MPI.SUM, 0),
-        "n_positively_cut": red(int(positively_cut(sign, cells).sum()), MPI.SUM, 0),
-        "n_unaltered": red(int((~moved[cells].any(axis=1)).sum()), MPI.SUM, 0),
+    report: QualityReport = {
         "theta_min_deg": red(float(ang.min()) if len(cells) else 180.0, MPI.MIN, 180.0),
         "theta_max_deg": red(float(ang.max()) if len(cells) else 0.0, MPI.MAX, 0.0),
         "q_max": red(float(radius_ratio(x, cells).max()) if len(cells) else 0.0, MPI.MAX, 0.0),
@@ -110,5 +150,36 @@ def cell_quality(
         report[f"Q{k}_max"] = comm.allreduce(float(sel.max()) if len(sel) else 0.0, MPI.MAX)
     report["n_inverted"] = red(int((ratio <= 0).sum()), MPI.SUM, 0)
     report["min_area_ratio"] = red(float(ratio.min()) if len(cells) else np.inf, MPI.MIN, np.inf)
-    report["percent_unaltered"] = 100.0 * report["n_unaltered"] / max(report["n_cells"], 1)
     return report
+
+
+def _tetrahedra(
+    comm: MPI.Comm,
+    x: npt.NDArray[np.float64],
+    background_x: npt.NDArray[np.float64],
+    cells: npt.NDArray,
+    sign: npt.NDArray[np.float64],
+) -> QualityReport:
+    """Dihedral angle, radius ratio, mean ratio and volume figures of tetrahedra (reduced).
+
+    Orientation and volume ratio are taken against the background tetrahedra (DOLFINx
+    does not orient tetrahedra, so either sign is valid there)."""
+    vol0 = _tetrahedron.signed_volumes(background_x, cells)
+    vol1 = _tetrahedron.signed_volumes(x, cells)
+    s = _tetrahedron.quality_summary(x, cells, orientation=np.where(vol0 < 0, -1.0, 1.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = vol1 / vol0
+    hist = np.ascontiguousarray(s["dihedral_histogram"], dtype=np.int64)
+    total = np.zeros_like(hist)
+    comm.Allreduce(hist, total, op=MPI.SUM)
+    return {
+        "theta_min_deg": comm.allreduce(float(s["dihedral_min_deg"]), op=MPI.MIN),
+        "theta_max_deg": comm.allreduce(float(s["dihedral_max_deg"]), op=MPI.MAX),
+        "dihedral_histogram": [int(c) for c in total],
+        "radius_ratio_min": comm.allreduce(float(s["radius_ratio_min"]), op=MPI.MIN),
+        "mean_ratio_min": comm.allreduce(float(s["mean_ratio_min"]), op=MPI.MIN),
+        "n_inverted": comm.allreduce(int(s["n_inverted"]), op=MPI.SUM),
+        "min_volume_ratio": comm.allreduce(
+            float(ratio.min()) if len(cells) else np.inf, op=MPI.MIN
+        ),
+    }
