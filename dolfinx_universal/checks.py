@@ -200,8 +200,10 @@ class CellLocator:
         m = len(cells)
         self.origin = lo.min(axis=0) if m else np.zeros(d)
         extent = (hi - lo).max(axis=1) if m else np.ones(1)
-        # bins about the size of a typical cell: each cell spans a few bins
-        self.g = g = float(max(np.median(extent), 1e-300)) if m else 1.0
+        # bins about the size of a typical cell (twice that in 3D): each cell spans a few
+        # bins (at most 2 per axis in 3D, where 3 per axis would mean up to 27 entries)
+        scale = 1.0 if d == 2 else 2.0
+        self.g = g = scale * float(max(np.median(extent), 1e-300)) if m else 1.0
         i0 = np.floor((lo - self.origin) / g).astype(np.int64)
         i1 = np.floor((hi - self.origin) / g).astype(np.int64)
         self.shape = (i1.max(axis=0) + 1) if m else np.ones(d, dtype=np.int64)

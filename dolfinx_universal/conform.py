@@ -451,9 +451,12 @@ class UniversalMesh:
         cells = near_cells.astype(np.int32)
         if self.tdim == 2:  # the locator of all cells, cached for moving domains
             locator = self._locator
-        else:  # in 3D the band's cells are a small share of the background: only those
-            locator = CellLocator(self._x, self._c2v[cells])
-            cells = np.arange(len(cells), dtype=np.int32)
+        else:  # 3D: only the cells that can hold a point of Gamma (each vertex within its
+            # size h, at least the diameter of its cells, of Gamma): a thin layer of the band
+            cv = self._c2v[cells]
+            near = (np.abs(phi[cv]) <= self.h[cv]).all(axis=1)
+            locator = CellLocator(self._x, cv[near])
+            cells = np.arange(int(near.sum()), dtype=np.int32)
         raise_collective(comm, containment_problems(locator, boundary, cells, comm))
         problems, theta = classification_problems(
             xp, s, phi, pe, self._c2v, self._c2f, self._f2c_offsets, self._f2c, imv.size_local,
