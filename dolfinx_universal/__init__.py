@@ -29,6 +29,7 @@ from .moving import MovingDomain
 from .moving_problem import MovingLinearProblem, MovingStokes
 from .quality import quality_report
 from .relax import relax_vertices
+from .surfaces import Ellipsoid, ImplicitSurface, Sphere, Surface, Torus
 from .validation import MeshingError
 
 try:
@@ -46,7 +47,9 @@ __all__ = [
     "CurvedMesh",
     "Domain",
     "Ellipse",
+    "Ellipsoid",
     "ImplicitCurve",
+    "ImplicitSurface",
     "MeshedDomain",
     "MeshingError",
     "MovingDomain",
@@ -56,6 +59,9 @@ __all__ = [
     "PolarCurve",
     "RigidMotion",
     "SlipConstraint",
+    "Sphere",
+    "Surface",
+    "Torus",
     "UniversalMesh",
     "boundary_dof_data",
     "conditioning_angle",

@@ -37,12 +37,21 @@ _GRID_CELLS = 1024  # cells of the sign/distance acceleration grid along the bbo
 
 
 # ----------------------------------------------------------------------------- helpers
-def _as_points(x: npt.ArrayLike, name: str = "x") -> Float:
-    """``x`` as a contiguous float64 array ``(n, 2)`` (first two columns), checked finite."""
+def _as_points(x: npt.ArrayLike, name: str = "x", dim: int = 2) -> Float:
+    """``x`` as a contiguous float64 array ``(n, dim)``, checked finite.
+
+    ``dim = 2`` (planar boundaries): ``(n, 2)`` or ``(n, 3)``, of which the first two columns
+    are kept. ``dim = 3`` (surfaces): exactly ``(n, 3)``.
+    """
     a = np.asarray(x, dtype=np.float64)
-    if a.ndim != 2 or a.shape[1] not in (2, 3):
+    if dim == 3:
+        if a.ndim != 2 or a.shape[1] != 3:
+            raise ValueError(f"{name} must have shape (n, 3), got {a.shape}")
+        a = np.ascontiguousarray(a)
+    elif a.ndim != 2 or a.shape[1] not in (2, 3):
         raise ValueError(f"{name} must have shape (n, 2) or (n, 3), got {a.shape}")
-    a = np.ascontiguousarray(a[:, :2])
+    else:
+        a = np.ascontiguousarray(a[:, :2])
     bad = ~np.isfinite(a).all(axis=1)
     if bad.any():
         i = int(np.argmax(bad))
@@ -51,11 +60,12 @@ def _as_points(x: npt.ArrayLike, name: str = "x") -> Float:
     return a
 
 
-def _vector(v: npt.ArrayLike, name: str) -> Float:
-    """A finite 2-vector."""
-    a = np.asarray(v, dtype=np.float64).reshape(-1)[:2]
-    if a.shape != (2,) or not np.isfinite(a).all():
-        raise ValueError(f"{name} must be two finite numbers, got {v!r}")
+def _vector(v: npt.ArrayLike, name: str, dim: int = 2) -> Float:
+    """A finite ``dim``-vector (the first ``dim`` numbers of ``v``)."""
+    a = np.asarray(v, dtype=np.float64).reshape(-1)[:dim]
+    if a.shape != (dim,) or not np.isfinite(a).all():
+        words = {2: "two", 3: "three"}.get(dim, str(dim))
+        raise ValueError(f"{name} must be {words} finite numbers, got {v!r}")
     return a
 
 
@@ -98,6 +108,74 @@ def _call(fn: ArrayFn, arg: Float, shape: tuple[int, ...]) -> Float:
 
 def _norm(v: Float) -> Float:
     return np.sqrt(v[..., 0] ** 2 + v[..., 1] ** 2)
+
+
+def _normd(v: Float) -> Float:
+    """Euclidean norms of the rows of ``v (..., 2)`` (as :func:`_norm`) or ``(..., 3)``."""
+    if v.shape[-1] == 2:
+        return _norm(v)
+    return np.sqrt(v[..., 0] ** 2 + v[..., 1] ** 2 + v[..., 2] ** 2)
+
+
+def _tangent_basis(normal: Float) -> Float:
+    """Orthonormal tangent bases ``(n, 2, 3)`` of the planes of unit normals ``(n, 3)``.
+
+    ``t1 = unit(e_k x N)`` with ``e_k`` the coordinate axis least aligned with ``N``, and
+    ``t2 = N x t1``, so that ``(t1, t2, N)`` is right-handed (``t1 x t2 = N``). The choice
+    jumps where the least aligned axis changes (no continuous choice exists on a sphere).
+    """
+    k = np.argmin(np.abs(normal), axis=1)
+    e = np.zeros_like(normal)
+    e[np.arange(len(normal)), k] = 1.0
+    t1 = np.cross(e, normal)
+    t1 /= _normd(t1)[:, None]
+    t2 = np.cross(normal, t1)
+    return np.stack([t1, t2], axis=1)
+
+
+def _rotation_matrix(rotation: object, name: str = "rotation") -> Float:
+    """A 3x3 rotation matrix from a matrix, a rotation vector or an ``(axis, angle)`` pair.
+
+    Parameters
+    ----------
+    rotation
+        A proper orthogonal matrix ``(3, 3)`` (checked to ``1e-10``, then orthonormalised),
+        a rotation vector ``(3,)`` (axis times the angle in radians, right-hand rule), or a
+        pair ``(axis (3,), angle)`` with any non-zero axis.
+    """
+    if (
+        isinstance(rotation, tuple | list)
+        and len(rotation) == 2
+        and np.ndim(rotation[1]) == 0
+        and np.size(rotation[0]) == 3
+    ):
+        axis = _vector(rotation[0], f"{name} axis", 3)
+        length = float(np.sqrt(axis @ axis))
+        angle = float(rotation[1])
+        if not (length > 0 and np.isfinite(angle)):
+            raise ValueError(f"{name}: the axis must be non-zero and the angle finite")
+        vec = axis * (angle / length)
+    else:
+        a = np.asarray(rotation, dtype=np.float64)
+        if a.shape == (3, 3):
+            if not np.isfinite(a).all() or np.abs(a.T @ a - np.eye(3)).max() > 1e-10:
+                raise ValueError(f"{name} must be an orthogonal 3x3 matrix, got {a.tolist()}")
+            if np.linalg.det(a) < 0:
+                raise ValueError(f"{name} must be a rotation (determinant +1), not a reflection")
+            u, _, vt = np.linalg.svd(a)
+            return np.asarray(u @ vt, dtype=np.float64)
+        if a.shape != (3,) or not np.isfinite(a).all():
+            raise ValueError(
+                f"{name} must be a 3x3 rotation matrix, a rotation vector (3,) or a pair "
+                f"(axis, angle), got {rotation!r}"
+            )
+        vec = a
+    theta = float(np.sqrt(vec @ vec))
+    if theta == 0:
+        return np.eye(3)
+    k = vec / theta
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + np.sin(theta) * K + (1 - np.cos(theta)) * (K @ K)
 
 
 def _rotate(v: Float, c: float, s: float) -> Float:
@@ -365,7 +443,14 @@ class Boundary(abc.ABC):
     Point arguments are arrays ``(n, 2)`` or ``(n, 3)`` (only the first two columns are used,
     ``n`` may be 0); results are float64 arrays ``(n,)`` or ``(n, 2)``. Non-finite points
     raise :class:`ValueError`. Points on Gamma are outside Omega (sign +1).
+
+    :attr:`gdim` is the dimension of the space of Omega: 2 here, 3 for the surfaces of
+    :mod:`dolfinx_universal.surfaces` (whose points are ``(n, 3)``; see
+    :class:`~dolfinx_universal.surfaces.Surface`).
     """
+
+    gdim: int = 2
+    """Dimension of the space (2: curves bound planar domains, 3: surfaces bound solids)."""
 
     @abc.abstractmethod
     def sign(self, x: npt.ArrayLike) -> Float:
@@ -416,9 +501,9 @@ class Boundary(abc.ABC):
         y
             ``(n, 2)``: the closest points ``pi(x)``.
         """
-        x = _as_points(x)
+        x = _as_points(x, dim=self.gdim)
         y = self.closest_point(x)
-        return self.sign(x) * _norm(x - y), y
+        return self.sign(x) * _normd(x - y), y
 
     def signed_distance(self, x: npt.ArrayLike) -> Float:
         """Signed distance ``phi (n,)`` to Gamma of points ``x (n, 2)``, negative in Omega."""
@@ -427,6 +512,23 @@ class Boundary(abc.ABC):
     def tangent(self, y: npt.ArrayLike) -> Float:
         """Unit tangents ``(-n_y, n_x)`` at ``pi(y)``, ``(n, 2)``: Omega lies on their left."""
         return _rot90(self.normal(y))
+
+    def tangent_basis(self, y: npt.ArrayLike) -> Float:
+        """Orthonormal bases of the tangent spaces of Gamma at ``pi(y)``.
+
+        Parameters
+        ----------
+        y
+            Points ``(n, gdim)``.
+
+        Returns
+        -------
+        ``(n, gdim - 1, gdim)``: in 2D the unit tangent of :meth:`tangent` ``(n, 1, 2)``; in
+        3D two unit tangents ``t1, t2`` with ``t1 x t2`` the outward normal ``(n, 2, 3)``.
+        """
+        if self.gdim == 2:
+            return self.tangent(y)[:, None, :]
+        return _tangent_basis(self.normal(y))
 
     def project_normal(self, x: npt.ArrayLike) -> tuple[Float, Float, Float]:
         """Signed distances, closest points and the outward normals there, from one projection.
@@ -445,7 +547,7 @@ class Boundary(abc.ABC):
         normal
             ``(n, 2)``: the unit outward normals ``N(pi(x))``.
         """
-        x = _as_points(x)
+        x = _as_points(x, dim=self.gdim)
         phi, y = self.project(x)
         return phi, y, self.normal(y)
 
@@ -458,7 +560,7 @@ class Boundary(abc.ABC):
         """:meth:`project_normal` as :meth:`Boundary.project` computes ``phi`` (the sign and
         the distance to the closest point), with the normals of :meth:`_closest_normal`."""
         y, n = self._closest_normal(x)
-        return self.sign(x) * _norm(x - y), y, n
+        return self.sign(x) * _normd(x - y), y, n
 
     def near(self, x: npt.ArrayLike, distance: float | npt.ArrayLike) -> Bool:
         """Cheap superset of the points within ``distance`` of Gamma.
@@ -515,6 +617,10 @@ class Boundary(abc.ABC):
     def _length(self) -> float:
         """Length of Gamma (approximate)."""
         return float(sum(_chords(q).sum() for q in self._loops(np.inf)))
+
+    def _measure(self) -> float:
+        """Measure of Gamma (approximate): its length in 2D, its area in 3D."""
+        return self._length()
 
     def _lower_bound(self, x: Float) -> Float:
         """Cheap lower bound of the distance from ``x (n, 2)`` to Gamma, shape ``(n,)``."""
@@ -1272,21 +1378,26 @@ class Ellipse(ParametricCurve):
 
 # ----------------------------------------------------------------------------- compositions
 class RigidMotion(Boundary):
-    """``base`` rotated by ``angle`` about ``center``, then translated by ``translation``.
+    """``base`` rotated about ``center``, then translated by ``translation``.
 
-    ``y -> center + R(angle) (y - center) + translation``; everything is delegated to ``base``
-    through the inverse motion (normals and tangents rotated).
+    ``y -> center + R (y - center) + translation``; everything is delegated to ``base``
+    through the inverse motion (normals and tangents rotated). In 2D ``R`` is the rotation by
+    ``angle``; for a surface (``base.gdim == 3``) it is ``rotation``, or the rotation by
+    ``angle`` about the z axis when ``rotation`` is None.
 
     Parameters
     ----------
     base
-        The boundary in its reference position.
+        The boundary (or surface) in its reference position.
     angle
-        Rotation in radians (counter-clockwise).
+        Rotation in radians (counter-clockwise; about the z axis in 3D).
     center
-        Centre of the rotation ``(2,)``.
+        Centre of the rotation ``(gdim,)``; the default (zeros) is the origin in 3D too.
     translation
-        Translation ``(2,)`` applied after the rotation.
+        Translation ``(gdim,)`` applied after the rotation; the default is no translation.
+    rotation
+        3D only (then ``angle`` must be 0): a rotation matrix ``(3, 3)``, a rotation vector
+        ``(3,)`` (axis times angle) or a pair ``(axis, angle)``.
     """
 
     def __init__(
@@ -1295,23 +1406,67 @@ class RigidMotion(Boundary):
         angle: float = 0.0,
         center: npt.ArrayLike = (0.0, 0.0),
         translation: npt.ArrayLike = (0.0, 0.0),
+        *,
+        rotation: object = None,
     ) -> None:
         self.base = base
+        self.gdim = dim = int(getattr(base, "gdim", 2))
         self.angle = float(angle)
-        self.center = _vector(center, "center")
-        self.translation = _vector(translation, "translation")
-        self._cs = np.cos(self.angle), np.sin(self.angle)
+        if dim == 2:
+            if rotation is not None:
+                raise ValueError("rotation is for surfaces (3D): give a planar motion's angle")
+            self.center = _vector(center, "center")
+            self.translation = _vector(translation, "translation")
+            self._cs = np.cos(self.angle), np.sin(self.angle)
+            c, s = self._cs
+            self.rotation = np.array([[c, -s], [s, c]])
+            return
+        if rotation is not None and self.angle != 0:
+            raise ValueError("give either angle (about the z axis) or rotation, not both")
+        self.center = self._vector3(center, "center")
+        self.translation = self._vector3(translation, "translation")
+        self.rotation = _rotation_matrix(
+            rotation if rotation is not None else ((0.0, 0.0, 1.0), self.angle)
+        )
 
-    def moved(self, angle: float = 0.0, translation: npt.ArrayLike = (0.0, 0.0)) -> RigidMotion:
+    @staticmethod
+    def _vector3(v: npt.ArrayLike, name: str) -> Float:
+        """A 3D vector; two zeros (the planar default) are the zero vector."""
+        a = np.asarray(v, dtype=np.float64).reshape(-1)
+        if a.shape == (2,) and (a == 0).all():
+            return np.zeros(3)
+        return _vector(a, name, 3)
+
+    def moved(
+        self,
+        angle: float = 0.0,
+        translation: npt.ArrayLike = (0.0, 0.0),
+        *,
+        rotation: object = None,
+    ) -> RigidMotion:
         """The same base and centre under another motion (absolute, not composed)."""
-        return RigidMotion(self.base, angle, self.center, translation)
+        if self.gdim == 2:
+            return RigidMotion(self.base, angle, self.center, translation)
+        return RigidMotion(self.base, angle, self.center, translation, rotation=rotation)
 
     def _to_base(self, x: npt.ArrayLike) -> Float:
-        x = _as_points(x) - self.center - self.translation
-        return self.center + _rotate(x, self._cs[0], -self._cs[1])
+        if self.gdim == 2:
+            x = _as_points(x) - self.center - self.translation
+            return self.center + _rotate(x, self._cs[0], -self._cs[1])
+        return self.center + (_as_points(x, dim=3) - self.center - self.translation) @ (
+            self.rotation
+        )
 
     def _from_base(self, y: Float) -> Float:
-        return self.center + _rotate(y - self.center, *self._cs) + self.translation
+        if self.gdim == 2:
+            return self.center + _rotate(y - self.center, *self._cs) + self.translation
+        return self.center + (y - self.center) @ self.rotation.T + self.translation
+
+    def _turn(self, v: Float) -> Float:
+        """Vectors ``(n, gdim)`` (or ``(n, k, gdim)``) rotated by the motion."""
+        if self.gdim == 2:
+            return _rotate(v, *self._cs)
+        return v @ self.rotation.T
 
     def sign(self, x: npt.ArrayLike) -> Float:
         return self.base.sign(self._to_base(x))
@@ -1327,19 +1482,24 @@ class RigidMotion(Boundary):
         if not _native(self, RigidMotion, "project", "normal"):
             return Boundary.project_normal(self, x)
         phi, y, n = self.base.project_normal(self._to_base(x))
-        return phi, self._from_base(y), _rotate(n, *self._cs)
+        return phi, self._from_base(y), self._turn(n)
 
     def _closest_normal(self, x: Float) -> tuple[Float, Float]:
         if not _native(self, RigidMotion, "closest_point", "normal"):
             return Boundary._closest_normal(self, x)
         y, n = self.base._closest_normal(self._to_base(x))
-        return self._from_base(y), _rotate(n, *self._cs)
+        return self._from_base(y), self._turn(n)
 
     def normal(self, y: npt.ArrayLike) -> Float:
-        return _rotate(self.base.normal(self._to_base(y)), *self._cs)
+        return self._turn(self.base.normal(self._to_base(y)))
 
     def tangent(self, y: npt.ArrayLike) -> Float:
-        return _rotate(self.base.tangent(self._to_base(y)), *self._cs)
+        return self._turn(self.base.tangent(self._to_base(y)))
+
+    def tangent_basis(self, y: npt.ArrayLike) -> Float:
+        if self.gdim == 2:
+            return self.tangent(y)[:, None, :]
+        return self._turn(self.base.tangent_basis(self._to_base(y)))
 
     def near(self, x: npt.ArrayLike, distance: float | npt.ArrayLike) -> Bool:
         return self.base.near(self._to_base(x), distance)
@@ -1348,8 +1508,13 @@ class RigidMotion(Boundary):
         return self.base._lower_bound(self._to_base(x))
 
     def bounding_box(self) -> Float:
-        (x0, y0), (x1, y1) = self.base.bounding_box()
-        c = self._from_base(np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]]))
+        if self.gdim == 2:
+            (x0, y0), (x1, y1) = self.base.bounding_box()
+            c = self._from_base(np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]]))
+        else:
+            box = np.asarray(self.base.bounding_box(), dtype=np.float64)
+            corners = np.array(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij")).reshape(3, -1)
+            c = self._from_base(box[corners.T, [0, 1, 2]])
         pad = 4 * _EPS * np.abs(c).max()
         return np.array([c.min(axis=0) - pad, c.max(axis=0) + pad])
 
@@ -1359,8 +1524,21 @@ class RigidMotion(Boundary):
     def min_radius_of_curvature(self) -> float:
         return self.base.min_radius_of_curvature()
 
+    @property
+    def euler_characteristic(self) -> int:
+        """Euler characteristic of the base surface (3D)."""
+        return int(self.base.euler_characteristic)  # type: ignore[attr-defined]
+
+    @property
+    def num_components(self) -> int:
+        """Number of connected components of the base surface (3D)."""
+        return int(self.base.num_components)  # type: ignore[attr-defined]
+
     def _length(self) -> float:
         return self.base._length()
+
+    def _measure(self) -> float:
+        return self.base._measure()
 
     def _loops(self, spacing: float) -> list[Float]:
         return [self._from_base(q) for q in self.base._loops(spacing)]
@@ -1373,10 +1551,12 @@ class RigidMotion(Boundary):
 class Domain(Boundary):
     """Omega = inside(``container``) minus the closures of the ``bodies``.
 
-    ``container=None`` is the whole plane (the background mesh clips it). Each body is a
-    :class:`Boundary` whose own inside is the solid. The components are assumed pairwise
-    disjoint and separated (bodies inside the container, apart from each other and from it),
-    so the distance to Gamma is the smallest distance to a component. Sign rule:
+    ``container=None`` is the whole plane or space (the background mesh clips it). Each body
+    is a :class:`Boundary` whose own inside is the solid. The components are all curves
+    (``gdim = 2``) or all surfaces (``gdim = 3``, :class:`~dolfinx_universal.surfaces.Surface`);
+    :attr:`gdim` is theirs. The components are assumed pairwise disjoint and separated
+    (bodies inside the container, apart from each other and from it), so the distance to
+    Gamma is the smallest distance to a component. Sign rule:
     ``sign(x) = -1`` iff ``container.sign(x) == -1`` and ``body.sign(x) == +1`` for every
     body; a point exactly on a body's curve (measure zero) therefore counts as in Omega.
     Normals point out of Omega: into the bodies.
@@ -1397,6 +1577,10 @@ class Domain(Boundary):
         for b, _ in self.components:
             if not isinstance(b, Boundary):
                 raise TypeError(f"Domain components must be Boundary objects, got {type(b)}")
+        dims = {int(getattr(b, "gdim", 2)) for b, _ in self.components}
+        if len(dims) != 1:
+            raise ValueError("the components of a Domain must all be curves or all surfaces")
+        self.gdim = dims.pop()
 
     @property
     def components(self) -> list[tuple[Boundary, bool]]:
@@ -1404,8 +1588,23 @@ class Domain(Boundary):
         first = [(self.container, False)] if self.container is not None else []
         return first + [(b, True) for b in self.bodies]
 
+    @property
+    def euler_characteristic(self) -> int:
+        """Euler characteristic of Gamma: the sum over the components (surfaces only).
+
+        Checks compare it per component: group the faces of the conforming mesh on Gamma by
+        :meth:`component_index` of their points and compare each group with
+        ``components[k][0].euler_characteristic``.
+        """
+        return sum(int(b.euler_characteristic) for b, _ in self.components)  # type: ignore
+
+    @property
+    def num_components(self) -> int:
+        """Number of connected components of Gamma (surfaces only: theirs summed)."""
+        return sum(int(b.num_components) for b, _ in self.components)  # type: ignore
+
     def sign(self, x: npt.ArrayLike) -> Float:
-        x = _as_points(x)
+        x = _as_points(x, dim=self.gdim)
         s = self.container.sign(x) if self.container is not None else np.full(len(x), -1.0)
         for b in self.bodies:
             m = np.flatnonzero(s < 0)
@@ -1413,27 +1612,27 @@ class Domain(Boundary):
         return s
 
     def _closest(self, x: Float, normals: bool = False) -> tuple[Int, Float, Float, Float | None]:
-        """Closest component index ``(n,)``, closest point ``(n, 2)``, distance ``(n,)`` and,
-        with ``normals``, the outward normals of Omega there ``(n, 2)`` (else None).
+        """Closest component index ``(n,)``, closest point ``(n, gdim)``, distance ``(n,)``
+        and, with ``normals``, the outward normals of Omega there ``(n, gdim)`` (else None).
 
         Each point is projected onto the component with the smallest distance lower bound,
         then onto every other component whose lower bound beats the best distance so far.
         """
         comps = self.components
         if not len(x):
-            e = np.empty((0, 2))
+            e = np.empty((0, self.gdim))
             return np.zeros(0, dtype=np.intp), e, np.zeros(0), e.copy() if normals else None
         if len(comps) == 1:  # no lower bounds needed
             b, body = comps[0]
             if normals:
                 y, n = b._closest_normal(x)
-                return np.zeros(len(x), dtype=np.intp), y, _norm(x - y), -n if body else n
+                return np.zeros(len(x), dtype=np.intp), y, _normd(x - y), -n if body else n
             y = b.closest_point(x)
-            return np.zeros(len(x), dtype=np.intp), y, _norm(x - y), None
+            return np.zeros(len(x), dtype=np.intp), y, _normd(x - y), None
         lb = np.array([b._lower_bound(x) for b, _ in comps]).reshape(len(comps), len(x))
         first = lb.argmin(axis=0) if len(x) else np.zeros(0, dtype=np.intp)
-        idx, y, d = first.copy(), np.empty((len(x), 2)), np.full(len(x), np.inf)
-        out: Float | None = np.empty((len(x), 2)) if normals else None
+        idx, y, d = first.copy(), np.empty((len(x), self.gdim)), np.full(len(x), np.inf)
+        out: Float | None = np.empty((len(x), self.gdim)) if normals else None
         for rnd in range(2):
             for k, (b, body) in enumerate(comps):
                 m = np.flatnonzero((first == k) if rnd == 0 else (lb[k] < d) & (first != k))
@@ -1442,7 +1641,7 @@ class Domain(Boundary):
                         yk, nk = b._closest_normal(x[m])
                     else:
                         yk = b.closest_point(x[m])
-                    dk = _norm(x[m] - yk)
+                    dk = _normd(x[m] - yk)
                     better = dk < d[m]
                     m = m[better]
                     y[m], d[m] = yk[better], dk[better]
@@ -1453,19 +1652,23 @@ class Domain(Boundary):
         return idx, y, d, out
 
     def component_index(self, y: npt.ArrayLike) -> Int:
-        """Index ``(n,)`` into :attr:`components` of the component closest to each point."""
-        return self._closest(_as_points(y))[0]
+        """Index ``(n,)`` into :attr:`components` of the component closest to each point.
+
+        For points ``y (n, gdim)`` on Gamma (e.g. closest points, or the vertices of the
+        conforming mesh on Gamma) it is the component they lie on.
+        """
+        return self._closest(_as_points(y, dim=self.gdim))[0]
 
     def closest_point(self, x: npt.ArrayLike) -> Float:
-        return self._closest(_as_points(x))[1]
+        return self._closest(_as_points(x, dim=self.gdim))[1]
 
     def project(self, x: npt.ArrayLike) -> tuple[Float, Float]:
-        x = _as_points(x)
+        x = _as_points(x, dim=self.gdim)
         _, y, d, _ = self._closest(x)
         return self.sign(x) * d, y
 
     def project_normal(self, x: npt.ArrayLike) -> tuple[Float, Float, Float]:
-        x = _as_points(x)
+        x = _as_points(x, dim=self.gdim)
         if not _native(self, Domain, "project", "closest_point", "normal"):
             return Boundary.project_normal(self, x)
         _, y, d, n = self._closest(x, normals=True)
@@ -1476,10 +1679,10 @@ class Domain(Boundary):
         return y, n  # type: ignore[return-value]
 
     def normal(self, y: npt.ArrayLike) -> Float:
-        return self._closest(_as_points(y), normals=True)[3]  # type: ignore[return-value]
+        return self._closest(_as_points(y, dim=self.gdim), normals=True)[3]  # type: ignore
 
     def near(self, x: npt.ArrayLike, distance: float | npt.ArrayLike) -> Bool:
-        x = _as_points(x)
+        x = _as_points(x, dim=self.gdim)
         out = np.zeros(len(x), dtype=bool)
         for b, _ in self.components:
             out |= b.near(x, distance)
@@ -1495,14 +1698,17 @@ class Domain(Boundary):
 
     def sample(self, n: int) -> Float:
         comps = [b for b, _ in self.components]
-        k = _split(n, [b._length() for b in comps])
-        return np.concatenate([b.sample(m) for b, m in zip(comps, k)] + [np.empty((0, 2))])
+        k = _split(n, [b._measure() for b in comps])
+        return np.concatenate([b.sample(m) for b, m in zip(comps, k)] + [np.empty((0, self.gdim))])
 
     def min_radius_of_curvature(self) -> float:
         return min(b.min_radius_of_curvature() for b, _ in self.components)
 
     def _length(self) -> float:
         return sum(b._length() for b, _ in self.components)
+
+    def _measure(self) -> float:
+        return sum(b._measure() for b, _ in self.components)
 
     def _loops(self, spacing: float) -> list[Float]:
         """The loops of every component (container first), each as that component gives it."""
