@@ -9,6 +9,7 @@ from importlib.metadata import PackageNotFoundError, version
 
 from . import io
 from .background import equilateral_mesh, refine_uniform
+from .background_tet import a15_mesh, bcc_mesh
 from .boundaries import (
     Boundary,
     Circle,
@@ -63,6 +64,8 @@ __all__ = [
     "Surface",
     "Torus",
     "UniversalMesh",
+    "a15_mesh",
+    "bcc_mesh",
     "boundary_dof_data",
     "conditioning_angle",
     "conform",

@@ -1,4 +1,10 @@
-"""Background meshes: equilateral triangulations, distribution with ghosts, per-vertex sizes."""
+"""Background meshes: equilateral triangulations, distribution with ghosts, per-vertex sizes.
+
+The distribution helpers (:func:`create_mesh`, :func:`layout_partitioner`,
+:func:`ghosted_partitioner`, :func:`create_background_mesh`) and :func:`vertex_sizes` take
+triangles and tetrahedra alike; the tetrahedral lattices are in
+:mod:`~dolfinx_universal.background_tet`.
+"""
 
 from __future__ import annotations
 
@@ -24,6 +30,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "GRADATION",
+    "cell_type_of",
     "create_background_mesh",
     "create_mesh",
     "equilateral_mesh",
@@ -41,7 +48,8 @@ GRADATION = 0.2
 def ghosted_partitioner():
     """Cell partitioner that distributes a mesh with shared-facet ghost cells.
 
-    The cells are partitioned by the graph partitioner of DOLFINx (SCOTCH in the wheel).
+    The cells (triangles or tetrahedra) are partitioned by the graph partitioner of DOLFINx
+    (SCOTCH in the wheel).
 
     Returns
     -------
@@ -53,10 +61,12 @@ def ghosted_partitioner():
 def _keep_layout(comm: MPI.Comm, nparts: int, dual: graph.AdjacencyList, ghosting: bool):
     """Graph "partitioner" that keeps every cell on the rank that supplies it.
 
-    ``dual`` is the distributed dual graph of the cells (facet neighbours, global cell
-    indices; the cells of rank ``r`` are numbered from the exclusive prefix sum of the cell
-    counts, as in DOLFINx's ``build_dual_graph``). A cell's destinations are its own rank
-    followed by the other ranks owning a facet neighbour: its shared-facet ghost copies.
+    Independent of the cell type (a facet has at most two cells for triangles and
+    tetrahedra alike). ``dual`` is the distributed dual graph of the cells (facet
+    neighbours, global cell indices; the cells of rank ``r`` are numbered from the exclusive
+    prefix sum of the cell counts, as in DOLFINx's ``build_dual_graph``). A cell's
+    destinations are its own rank followed by the other ranks owning a facet neighbour: its
+    shared-facet ghost copies.
     """
     n = int(dual.num_nodes)
     counts = np.asarray(comm.allgather(n), dtype=np.int64)
@@ -85,10 +95,27 @@ def layout_partitioner():
     """Cell partitioner that keeps each cell on its rank and adds shared-facet ghost cells.
 
     For meshes generated in parallel (:func:`equilateral_mesh`,
-    :func:`~dolfinx_universal.graded.graded_mesh`): every rank passes the cells it generated
-    to :func:`dolfinx.mesh.create_mesh` and owns them; no graph partitioning is done.
+    :func:`~dolfinx_universal.graded.graded_mesh`,
+    :func:`~dolfinx_universal.background_tet.bcc_mesh`,
+    :func:`~dolfinx_universal.background_tet.a15_mesh`): every rank passes the cells
+    (triangles or tetrahedra) it generated to :func:`dolfinx.mesh.create_mesh` and owns them;
+    no graph partitioning is done.
     """
     return dmesh.create_cell_partitioner(_keep_layout, dmesh.GhostMode.shared_facet, 2)
+
+
+_CELL_TYPES = {3: "triangle", 4: "tetrahedron"}
+"""Simplex cell type by number of vertices per cell (its topological dimension is one less)."""
+
+
+def cell_type_of(cells: npt.ArrayLike) -> str:
+    """``"triangle"`` for cells of shape ``(n, 3)``, ``"tetrahedron"`` for ``(n, 4)``."""
+    shape = np.shape(cells)
+    if len(shape) != 2 or shape[1] not in _CELL_TYPES:
+        raise ValueError(
+            f"cells must have shape (n, 3) (triangles) or (n, 4) (tetrahedra), got {shape}"
+        )
+    return _CELL_TYPES[shape[1]]
 
 
 def create_mesh(
@@ -96,29 +123,41 @@ def create_mesh(
     cells: npt.ArrayLike,
     x: npt.ArrayLike,
     partitioner: Callable | None = None,
+    cell_type: str | None = None,
 ) -> dmesh.Mesh:
-    """A degree-1 triangle mesh from distributed cells and node coordinates (collective).
+    """A degree-1 triangle or tetrahedron mesh from distributed cells and nodes (collective).
 
     Like :func:`dolfinx.mesh.create_mesh` with a degree-1 vector Lagrange element, but
     passes the cells as one flat array (DOLFINx's mixed-topology entry point with one cell
     type): the same mesh, without the per-row conversion that makes the ``(n, 3)`` entry
-    point about three times slower for 1e6 cells.
+    point about three times slower for 1e6 cells. The geometric dimension is the
+    topological one (2 for triangles, 3 for tetrahedra).
 
     Parameters
     ----------
     comm
         Communicator.
     cells
-        This rank's triangles ``(n, 3)``, global node indices.
+        This rank's cells, global node indices: triangles ``(n, 3)`` or tetrahedra
+        ``(n, 4)``.
     x
-        Coordinates ``(m, 2)`` of this rank's block of nodes: rank ``r`` holds the nodes
-        numbered from the sum of the block sizes of the ranks before it.
+        Coordinates ``(m, gdim)`` (or more columns, of which the first ``gdim`` are used) of
+        this rank's block of nodes: rank ``r`` holds the nodes numbered from the sum of the
+        block sizes of the ranks before it.
     partitioner
         Cell partitioner (``None``: DOLFINx's default, no ghosts, on several ranks).
+    cell_type
+        ``"triangle"`` or ``"tetrahedron"``; by default from the width of ``cells`` (give
+        it when ``cells`` is flat). Every rank must build the same cell type.
     """
-    element = basix.ufl.element("Lagrange", "triangle", 1, shape=(2,))
+    if cell_type is None:
+        cell_type = cell_type_of(cells)
+    if cell_type not in _CELL_TYPES.values():
+        raise ValueError(f"cell_type must be 'triangle' or 'tetrahedron', got {cell_type!r}")
+    tdim = 2 if cell_type == "triangle" else 3
+    element = basix.ufl.element("Lagrange", cell_type, 1, shape=(tdim,))
     cmap = coordinate_element(element.basix_element)
-    x = np.ascontiguousarray(np.asarray(x, dtype=np.float64)[:, :2])
+    x = np.ascontiguousarray(np.asarray(x, dtype=np.float64)[:, :tdim])
     flat = np.ascontiguousarray(np.asarray(cells, dtype=np.int64).reshape(-1))
     if partitioner is None and comm.size > 1:
         partitioner = dmesh.create_cell_partitioner(dmesh.GhostMode.none, 2)
@@ -201,29 +240,52 @@ def equilateral_triangulation(
 
 
 def create_background_mesh(
-    comm: MPI.Comm, x: npt.ArrayLike | None, cells: npt.ArrayLike | None, root: int = 0
+    comm: MPI.Comm,
+    x: npt.ArrayLike | None,
+    cells: npt.ArrayLike | None,
+    root: int = 0,
+    cell_type: str | None = None,
 ) -> dmesh.Mesh:
-    """Distribute a triangulation given on one rank as a DOLFINx mesh with shared-facet ghosts.
+    """Distribute a mesh given on one rank as a DOLFINx mesh with shared-facet ghosts.
 
     Parameters
     ----------
     comm
         Communicator of the mesh.
     x
-        Vertex coordinates ``(num_vertices, 2)``, read on ``root`` only (may be None elsewhere).
+        Vertex coordinates ``(num_vertices, gdim)`` (gdim 2 for triangles, 3 for
+        tetrahedra), read on ``root`` only (may be None elsewhere).
     cells
-        Triangles ``(num_cells, 3)`` (global vertex indices), read on ``root`` only (may be
-        None elsewhere).
+        Triangles ``(num_cells, 3)`` or tetrahedra ``(num_cells, 4)`` (global vertex
+        indices), read on ``root`` only (may be None elsewhere).
     root
         Rank holding the data.
+    cell_type
+        ``"triangle"`` or ``"tetrahedron"``; by default the width of ``cells`` on ``root``
+        decides (broadcast to the other ranks). Give it on every rank or on none.
     """
     if comm.rank == root:
         assert x is not None and cells is not None, "x and cells are required on root"
-    else:
-        x = np.empty((0, 2), dtype=np.float64)
-        cells = np.empty((0, 3), dtype=np.int64)
+    if cell_type is None:  # the same on every rank: all or none take part in the broadcast
+        found: str | ValueError | None = None
+        if comm.rank == root:
+            assert cells is not None
+            try:
+                found = cell_type_of(cells)
+            except ValueError as err:  # raised on every rank, not only on root
+                found = err
+        if comm.size > 1:
+            found = comm.bcast(found, root=root)
+        if isinstance(found, ValueError):
+            raise ValueError(str(found))
+        cell_type = found
+    if comm.rank != root:
+        width = 3 if cell_type == "triangle" else 4
+        x = np.empty((0, width - 1), dtype=np.float64)
+        cells = np.empty((0, width), dtype=np.int64)
+    assert x is not None and cells is not None
     partitioner = ghosted_partitioner() if comm.size > 1 else None
-    return create_mesh(comm, cells, x, partitioner)
+    return create_mesh(comm, cells, x, partitioner, cell_type)
 
 
 def equilateral_mesh(comm: MPI.Comm, box: Sequence[Sequence[float]], h: float) -> dmesh.Mesh:
@@ -274,6 +336,22 @@ def refine_uniform(msh: dmesh.Mesh, times: int = 1) -> dmesh.Mesh:
     return msh
 
 
+_EDGES: dict[int, tuple[tuple[int, int], ...]] = {
+    3: ((0, 1), (1, 2), (2, 0)),
+    4: ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)),
+}
+"""Local vertex pairs of the edges of a triangle and of a tetrahedron."""
+
+
+def _longest_edges(
+    x: npt.NDArray[np.float64], cells: npt.NDArray[np.int32], pairs: Sequence[tuple[int, int]]
+) -> npt.NDArray[np.float64]:
+    """Longest edge of each cell ``(m,)`` among the local vertex ``pairs``."""
+    p = x[cells]
+    lengths = np.array([np.linalg.norm(p[:, a] - p[:, b], axis=1) for a, b in pairs])
+    return lengths.max(axis=0)
+
+
 def vertex_sizes(
     imv: IndexMap,
     x: npt.NDArray[np.float64],
@@ -290,14 +368,17 @@ def vertex_sizes(
     then has a small tangential gradient across the level changes of a graded background,
     where the raw cell size jumps by a factor 2 (which folds triangles there).
 
+    The diameter of a cell is its longest edge (3 edges of a triangle, 6 of a tetrahedron).
+
     Parameters
     ----------
     imv
         Vertex index map of the mesh.
     x
-        Process-local vertex coordinates (owned and ghost) ``(num_vertices, 2)``.
+        Process-local vertex coordinates (owned and ghost) ``(num_vertices, gdim)``.
     c2v
-        Cell -> vertex connectivity (owned cells first, then ghosts) ``(num_cells, 3)``.
+        Cell -> vertex connectivity (owned cells first, then ghosts): triangles
+        ``(num_cells, 3)`` or tetrahedra ``(num_cells, 4)``.
     num_owned
         Number of owned cells.
     local
@@ -309,16 +390,19 @@ def vertex_sizes(
     -------
     Sizes ``(num_vertices,)``, the same on every rank sharing a vertex.
     """
-    diam = cell_diameters(x, c2v[:num_owned])
+    nv = c2v.shape[1]
+    pairs = _EDGES[nv]
+    if nv == 3:
+        diam = cell_diameters(x, c2v[:num_owned])
+    else:
+        diam = _longest_edges(x, c2v[:num_owned], pairs)
     if not local:
         hmax = comm.allreduce(float(diam.max()) if len(diam) else 0.0, op=MPI.MAX)
         return np.full(len(x), hmax)
     hv = np.zeros(len(x))
-    np.maximum.at(hv, c2v[:num_owned].ravel(), np.repeat(diam, 3))
+    np.maximum.at(hv, c2v[:num_owned].ravel(), np.repeat(diam, nv))
     hv = vertex_reduce(imv, hv, "max")
-    edges = np.unique(
-        np.sort(np.concatenate([c2v[:, [0, 1]], c2v[:, [1, 2]], c2v[:, [2, 0]]]), axis=1), axis=0
-    )
+    edges = np.unique(np.sort(np.concatenate([c2v[:, list(p)] for p in pairs]), axis=1), axis=0)
     a, b = edges[:, 0], edges[:, 1]
     drop = GRADATION * np.linalg.norm(x[a] - x[b], axis=1)
     while True:
