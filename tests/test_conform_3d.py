@@ -172,3 +172,24 @@ def test_same_mesh_on_any_number_of_ranks():
     # (a few ulps of O(1) coordinates), far below any relaxation step (>= 1e-2 h).
     assert np.abs(a - b).max() < 1e-10
     assert cm.moved_angle_range == pytest.approx(ref.moved_angle_range, abs=1e-9)
+
+
+def test_mesh_domain_surfaces():
+    torus = du.Torus(C, 1.0, 0.35)
+    md = du.mesh_domain(comm, torus, 0.5)
+    cert = md.certificate
+    # sized from the tube: feature size 0.35 divided by 3 (degree 1)
+    assert cert.h_min == pytest.approx(0.35 / 3)
+    assert cert.num_loops == 1 and cert.num_pieces == 1
+    assert 30.0 <= cert.min_angle_deg and cert.max_angle_deg <= 125.0
+    assert md.mesh.topology.index_map(3).size_global == cert.num_cells
+    r = _check(md.conforming, torus, 2 * np.pi**2 * 0.35**2, cert.h_min, euler=0)
+    assert r["min"] == pytest.approx(cert.min_angle_deg)
+
+
+def test_mesh_domain_refuses_curved_tetrahedra_and_tiny_gaps():
+    with pytest.raises(ValueError, match="curved tetrahedra"):
+        du.mesh_domain(comm, du.Sphere(C, 1.0), 0.5, degree=2)
+    gap = du.Domain(du.Sphere(C, 1.0), [du.Sphere(C + 0.4, 0.3)])  # 0.007 from the container
+    with pytest.raises(du.MeshingError, match="max_cells"):
+        du.mesh_domain(comm, gap, 0.5)
