@@ -84,7 +84,7 @@ class ConformingMesh:
     sign: npt.NDArray[np.float64]
     """Final vertex signs (-1 inside, +1 on Gamma after snapping), ``(num_vertices,)``."""
     background_x: npt.NDArray[np.float64]
-    """Vertex positions in the (perturbed) background, ``(num_vertices, 2)``; a vertex the
+    """Vertex positions in the (perturbed) background, ``(num_vertices, gdim)``; a vertex the
     relaxation slid along Gamma has one that projects onto its new image."""
     on_positive_edge: npt.NDArray[np.bool_]
     """Vertices snapped onto Gamma, ``(num_vertices,)``."""
@@ -101,11 +101,14 @@ class ConformingMesh:
     timings: dict[str, float] = field(default_factory=dict)
     """Wall-clock seconds of the stages (this rank)."""
     max_conditioning_angle: float = 0.0
-    """Largest conditioning angle in degrees (global; must be below 90)."""
+    """Largest conditioning angle in degrees (global; must be below 90); tetrahedra: the
+    largest dihedral angle at a positive face (at most 90)."""
     moved_angle_range: tuple[float, float] = (180.0, 0.0)
-    """Smallest and largest angle in degrees (global) of the triangles that moved."""
+    """Smallest and largest angle in degrees (global) of the cells that moved (dihedral
+    angles for tetrahedra)."""
     num_loops: int = 0
-    """Closed loops of Gamma_h (one per curve of Gamma, checked)."""
+    """Closed loops (surfaces, for tetrahedra) of Gamma_h, one per curve (surface piece) of
+    Gamma, checked."""
     num_pieces: int = 0
     """Connected pieces of the mesh (as many as the domain has, checked)."""
     _facet_tags: dmesh.MeshTags | None = field(default=None, repr=False)
@@ -203,11 +206,11 @@ class StraightMap:
     phi
         Signed distances; ``+-inf`` outside the band near Gamma, ``(num_vertices,)``.
     closest
-        Closest points ``pi(x)`` (NaN outside the band), ``(num_vertices, 2)``.
+        Closest points ``pi(x)`` (NaN outside the band), ``(num_vertices, gdim)``.
     x
-        Background positions after the eta perturbation, ``(num_vertices, 2)``.
+        Background positions after the eta perturbation, ``(num_vertices, gdim)``.
     y
-        Their images ``M_h(x)``, ``(num_vertices, 2)``.
+        Their images ``M_h(x)``, ``(num_vertices, gdim)``.
     on_positive_edge
         Vertices of positive edges (snapped onto Gamma), ``(num_vertices,)``.
     kept
@@ -224,11 +227,12 @@ class StraightMap:
     max_conditioning_angle
         Largest conditioning angle in degrees (global).
     moved_angle_range
-        Smallest and largest angle (degrees, global) of the kept triangles that moved.
+        Smallest and largest angle (degrees, global; dihedral for tetrahedra) of the kept
+        cells that moved.
     num_loops
-        Closed loops of Gamma_h (one per curve of Gamma).
+        Closed loops (surfaces) of Gamma_h, one per curve (surface piece) of Gamma.
     num_pieces
-        Connected pieces of the kept triangles (as many as the domain has).
+        Connected pieces of the kept cells (as many as the domain has).
     """
 
     sign: Float
@@ -259,14 +263,19 @@ class UniversalMesh:
     Parameters
     ----------
     background
-        Degree-1 triangle mesh containing the closure of the domain, acute near Gamma;
-        distributed with shared-facet ghosts (see :mod:`dolfinx_universal.background`).
+        Degree-1 triangle mesh (planar domains) or tetrahedron mesh (domains bounded by
+        surfaces) containing the closure of the domain, acute near Gamma (equilateral,
+        graded acute, A15 or BCC lattices); distributed with shared-facet ghosts (see
+        :mod:`dolfinx_universal.background`, :mod:`dolfinx_universal.background_tet`).
     R_r
         Relaxation radius; default ``relaxation_factor * h``. Must exceed ``h``.
     alpha
-        Relaxation factor in ``[(1 + h/R_r)^-1, 1]``; default ``(1 + h/R_r)^-1``.
+        Relaxation factor in ``[(1 + h/R_r)^-1, 1]``; default ``(1 + h/R_r)^-1``. Triangles
+        only: on tetrahedra ``M_h`` snaps the positive faces and moves nothing else (the
+        relaxation moves the band).
     eta
-        Quality perturbation threshold; 0 disables it.
+        Quality perturbation threshold; 0 disables it. Tetrahedra: inside vertices within
+        ``eta h`` of Gamma count as on Gamma (Rangarajan, Kabaria & Lew 2019).
     relaxation_factor
         ``R_r / h`` when ``R_r`` is not given.
     local_size
@@ -274,17 +283,18 @@ class UniversalMesh:
         of its cells, smoothed to vary by at most :data:`GRADATION` per unit length) instead
         of the global largest diameter; ``R_r`` then scales with it.
     min_angle
-        Quality floor in degrees: conforming triangles with a smaller angle are reported
-        (0 disables the check).
+        Quality floor in degrees: conforming triangles with a smaller angle (tetrahedra: a
+        smaller dihedral angle) are reported (0 disables the check).
     on_low_quality
         ``"warn"`` (a :class:`UserWarning` naming the places) or ``"raise"`` (a
         :class:`~dolfinx_universal.validation.MeshingError`).
     relax
         Relax the vertices near Gamma after ``M_h`` (:mod:`dolfinx_universal.relax`): the
         band's inside vertices move and the vertices on Gamma slide along it to raise the
-        worst quality (smallest angle and circumradius / inradius) of the kept triangles
-        around them; connectivity unchanged, a move is kept only if it helps and keeps
-        the triangles valid. ``False`` gives the plain ``M_h`` images.
+        worst quality (triangles: smallest angle and circumradius / inradius;
+        tetrahedra: mean ratio) of the kept cells around them; connectivity unchanged, a
+        move is kept only if it helps and keeps the cells valid. ``False`` gives the plain
+        ``M_h`` images.
     """
 
     def __init__(
@@ -579,11 +589,12 @@ class UniversalMesh:
     def conform(self, boundary: Boundary) -> ConformingMesh:
         """The straight conforming mesh of the domain bounded by ``boundary`` (collective).
 
-        Vertices of positive edges are snapped onto Gamma, inside vertices within ``R_r`` of
-        Gamma are relaxed inwards by at most ``alpha h``, triangles with all vertices
-        outside are dropped; with ``relax`` the band's vertices are then moved to improve
-        the worst triangles. No vertex is added; the kept triangles keep their
-        connectivity. The facet tags (and the mesh's edges) are built when first used.
+        Vertices of positive facets (edges of triangles, faces of tetrahedra) are snapped
+        onto Gamma, on triangles the inside vertices within ``R_r`` of Gamma are relaxed
+        inwards by at most ``alpha h``, cells with all vertices outside are dropped; with
+        ``relax`` the band's vertices are then moved to improve the worst cells. No vertex
+        is added; the kept cells keep their connectivity. The facet tags (and the mesh's
+        facets) are built when first used.
 
         Raises
         ------
