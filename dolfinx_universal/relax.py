@@ -105,10 +105,14 @@ DIRECTIONS_3D = 8
 sweep)."""
 SLIDES_3D = 6
 """Tetrahedra: directions in the tangent plane tried by a vertex sliding on Gamma."""
-SWEEPS_3D = 16
+SWEEPS_3D = 12
 """Tetrahedra: sweeps over all colours (the vertices on Gamma slide in all of them: the
 boundary tetrahedra of a snapped tetrahedral mesh are repaired by sliding; Rangarajan,
 Kabaria & Lew 2019)."""
+MIN_STEP_3D = 2e-2
+"""Tetrahedra: the step (in units of ``h``) below which a vertex stops. On the sphere at
+h = 3/40 (A15), 1e-2 h costs 1.9 times as much for a worst angle 0.8 degrees higher
+(35.8 against 35.1), 5e-2 h loses 2.6 degrees."""
 
 
 class Relaxation(NamedTuple):
@@ -439,7 +443,7 @@ def relax_vertices(
     nrm = normal.copy()  # normals at the current positions of the vertices on Gamma
     step = INITIAL_STEP * h[verts]
     hmax = MAX_STEP * h[verts]
-    hmin = MIN_STEP * h[verts]
+    hmin = (MIN_STEP if dim == 2 else MIN_STEP_3D) * h[verts]
     steps = np.asarray(STEPS)
     gsteps = np.asarray(GAMMA_STEPS)
     ndir = DIRECTIONS if dim == 2 else DIRECTIONS_3D
