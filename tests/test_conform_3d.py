@@ -193,3 +193,21 @@ def test_mesh_domain_refuses_curved_tetrahedra_and_tiny_gaps():
     gap = du.Domain(du.Sphere(C, 1.0), [du.Sphere(C + 0.4, 0.3)])  # 0.007 from the container
     with pytest.raises(du.MeshingError, match="max_cells"):
         du.mesh_domain(comm, gap, 0.5)
+
+
+@pytest.mark.parametrize(
+    "surface, message",
+    [
+        (du.Torus(C, 1.0, 0.12), "split into .* pieces of Gamma_h"),  # tube ~ one cell
+        (
+            du.Domain(
+                du.Sphere(C, 1.4),
+                [du.Sphere(C + [0.45, 0, 0], 0.4), du.Sphere(C - [0.45, 0, 0], 0.4)],
+            ),
+            "joins different surfaces",  # a gap of 0.1 = 0.4 h between the bodies
+        ),
+    ],
+)
+def test_unresolved_features_are_refused(surface, message):
+    with pytest.raises(du.MeshingError, match=message):
+        du.conform(a15_mesh(comm, BOX, 0.25), surface)
