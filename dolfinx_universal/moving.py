@@ -17,6 +17,7 @@ import ufl
 from dolfinx import fem, la
 from dolfinx import mesh as dmesh
 
+from . import _tetrahedron as tet
 from .boundaries import Boundary
 from .classify import interior_angles, positively_cut
 from .conform import UniversalMesh
@@ -106,22 +107,27 @@ class MovingDomain:
     ):
         if map not in MAPS:
             raise ValueError(f"unknown map {map!r}: choose one of {MAPS}")
+        if background.topology.dim == 3 and int(degree) != 1:
+            raise ValueError(
+                "curved tetrahedra (degree > 1) are not available yet: use degree=1 for surfaces"
+            )
         self.universal = UniversalMesh(background, **options)
         self.refinement_rounds = 0
         """Local refinements made by :meth:`from_motion` (0 otherwise)."""
         self.degree, self.map = int(degree), map
         self._kind = "G" if map in ("I", "G") else "G~"
+        self.tdim = tdim = background.topology.dim
         ce = fem.coordinate_element(
-            dmesh.CellType.triangle, self.degree, basix.LagrangeVariant.gll_warped
+            background.topology.cell_type, self.degree, basix.LagrangeVariant.gll_warped
         )
         self.mesh: dmesh.Mesh = fem.interpolate_geometry(background, ce)
         """The background with degree-q geometry; its nodes move, its topology never does."""
         self.comm: MPI.Comm = background.comm
-        self._x0 = self.mesh.geometry.x[:, :2].copy()
+        self._x0 = self.mesh.geometry.x[:, :tdim].copy()
         self._node_vector: la.Vector | None = None  # owned -> ghost copies of moved nodes
         self._dofmap = self.mesh.geometry.dofmaps[0]
         topo = self.mesh.topology
-        self._nco = topo.index_map(2).size_local
+        self._nco = topo.index_map(tdim).size_local
         self._c2v = self.universal._c2v
         self._c2f = self.universal._c2f
         self._dirty = np.zeros(len(self._c2v), dtype=bool)
@@ -200,6 +206,12 @@ class MovingDomain:
             positions = list(motion)
         if not positions:
             raise ValueError("the motion has no positions")
+        if getattr(positions[0], "gdim", 2) == 3:
+            raise ValueError(
+                "from_motion sizes graded triangle backgrounds for curves; for surfaces build "
+                "a tetrahedral background (e.g. du.a15_mesh) covering the motion and use "
+                "MovingDomain(background, degree=1)"
+            )
         box_arr, field, _, _ = size_from_geometry(
             comm,
             positions,
@@ -263,18 +275,21 @@ class MovingDomain:
         near[sm.near_cells] = True
         redo = np.flatnonzero(near | self._dirty | (sm.kept != self._kept))
         cells = c2v[redo]
-        nodes = collective_call(
-            self.comm,
-            "the curved map",
-            map_nodes,
-            cells,
-            sm.y,
-            sm.x,
-            sm.sign,
-            self.degree,
-            self._kind,
-            boundary.closest_point,
-        )
+        if self.tdim == 2:
+            nodes = collective_call(
+                self.comm,
+                "the curved map",
+                map_nodes,
+                cells,
+                sm.y,
+                sm.x,
+                sm.sign,
+                self.degree,
+                self._kind,
+                boundary.closest_point,
+            )
+        else:  # straight tetrahedra: the vertex images are the nodes
+            nodes = sm.y[cells]
         kept = sm.kept[redo]
         cut = np.flatnonzero(kept & positively_cut(sm.sign, cells))
         ratio = jacobian_ratio(nodes[cut], self.degree) if self.degree > 1 else np.ones(0)
@@ -297,7 +312,7 @@ class MovingDomain:
         x = self.mesh.geometry.x
         order = np.argsort(kept, kind="stable")
         rows = self._dofmap[redo[order]].ravel()
-        x[rows, :2] = nodes[order].reshape(-1, 2)
+        x[rows, : self.tdim] = nodes[order].reshape(-1, self.tdim)
         self._sync_ghost_nodes(rows, x)
         self._dirty, self._kept = near, sm.kept
         self.active.x.array[self._cell_dof[redo]] = kept.astype(np.float64)
@@ -333,14 +348,15 @@ class MovingDomain:
         """
         if self.comm.size == 1:
             return
+        d = self.tdim
         if self._node_vector is None:  # the current nodes; then only the rewritten ones
-            self._node_vector = la.vector(self.mesh.geometry.index_map(), 2, dtype=np.float64)
-            self._node_vector.array[:] = x[:, :2].ravel()
-        values = self._node_vector.array.reshape(-1, 2)
-        values[rows] = x[rows, :2]
+            self._node_vector = la.vector(self.mesh.geometry.index_map(), d, dtype=np.float64)
+            self._node_vector.array[:] = x[:, :d].ravel()
+        values = self._node_vector.array.reshape(-1, d)
+        values[rows] = x[rows, :d]
         self._node_vector.scatter_forward()
         n = self.mesh.geometry.index_map().size_local
-        x[n:, :2] = values[n:]
+        x[n:, :d] = values[n:]
 
     def _check_coverage(self, boundary: Boundary) -> None:
         """Raise if ``boundary`` needs a finer background than :meth:`from_motion` built."""
@@ -399,9 +415,19 @@ class MovingDomain:
 
             rep["theta_min_deg"] = min(rep["theta_min_deg"], ext(b["theta_min"], np.min, 180.0))
             rep["theta_max_deg"] = max(rep["theta_max_deg"], ext(b["theta_max"], np.max, 0.0))
-            rep["q_max"] = max(rep["q_max"], ext(b["q"], np.max, 0.0))
-            rep["Q3_max"] = max(rep["Q3_max"], ext(b["Q"], np.max, 0.0))
-            rep["min_area_ratio"] = min(rep["min_area_ratio"], 1.0)
+            if self.tdim == 2:
+                rep["q_max"] = max(rep["q_max"], ext(b["q"], np.max, 0.0))
+                rep["Q3_max"] = max(rep["Q3_max"], ext(b["Q"], np.max, 0.0))
+                rep["min_area_ratio"] = min(rep["min_area_ratio"], 1.0)
+            else:
+                rep["radius_ratio_min"] = min(rep["radius_ratio_min"], ext(b["rr"], np.min, 1.0))
+                rep["mean_ratio_min"] = min(rep["mean_ratio_min"], ext(b["mr"], np.min, 1.0))
+                rep["min_volume_ratio"] = min(rep["min_volume_ratio"], 1.0)
+                hist = b["hist"][far].sum(axis=0).astype(np.int64)
+                self.comm.Allreduce(MPI.IN_PLACE, hist, op=MPI.SUM)
+                rep["dihedral_histogram"] = [
+                    int(a + c) for a, c in zip(rep["dihedral_histogram"], hist)
+                ]
             rep["n_cells"] += n_far
             rep["n_unaltered"] += n_far
             rep["percent_unaltered"] = 100.0 * rep["n_unaltered"] / max(rep["n_cells"], 1)
@@ -409,14 +435,26 @@ class MovingDomain:
 
     @cached_property
     def _background_quality(self) -> dict[str, npt.NDArray[np.float64]]:
-        """Per-cell quality of the owned background triangles."""
+        """Per-cell quality of the owned background cells."""
         x, cells = self.universal._x, self._c2v[: self._nco]
-        ang = np.degrees(interior_angles(x, cells))
+        if self.tdim == 2:
+            ang = np.degrees(interior_angles(x, cells))
+            return {
+                "theta_min": ang.min(axis=1),
+                "theta_max": ang.max(axis=1),
+                "q": radius_ratio(x, cells),
+                "Q": edge_ratio(x, cells),
+            }
+        ang = np.degrees(tet.dihedral_angles(x, cells))
+        bins = np.clip(np.searchsorted(tet.DIHEDRAL_BIN_EDGES, ang, side="right") - 1, 0, 17)
+        hist = np.zeros((len(cells), len(tet.DIHEDRAL_BIN_EDGES) - 1))
+        np.add.at(hist, (np.repeat(np.arange(len(cells)), 6), bins.ravel()), 1.0)
         return {
             "theta_min": ang.min(axis=1),
             "theta_max": ang.max(axis=1),
-            "q": radius_ratio(x, cells),
-            "Q": edge_ratio(x, cells),
+            "rr": tet.radius_ratio(x, cells),
+            "mr": np.abs(tet.mean_ratio(x, cells)),
+            "hist": hist,
         }
 
     # -- what forms and boundary conditions need --------------------------------------------
@@ -466,12 +504,13 @@ class MovingDomain:
         ``[dofs of W, dofs of V0]`` for :func:`dolfinx.fem.dirichletbc` with a function on
         ``V0``.
         """
-        self.mesh.topology.create_connectivity(1, 2)
+        fdim = self.tdim - 1
+        self.mesh.topology.create_connectivity(fdim, self.tdim)
         if not isinstance(V, fem.FunctionSpace):
             V = list(V)
             if len(V) != 2:
                 raise ValueError("immersed_dofs: give a space or a pair (sub-space, collapsed)")
-        return fem.locate_dofs_topological(V, 1, self.immersed_facets)
+        return fem.locate_dofs_topological(V, fdim, self.immersed_facets)
 
     def immersed_integral(self, integrand: Callable[[str], ufl.core.expr.Expr]) -> ufl.Form:
         """``∫_Gamma integrand ds`` as a one-sided interior-facet form on the background.
@@ -489,7 +528,8 @@ class MovingDomain:
         )
 
     def immersed_nodes(self) -> npt.NDArray[np.float64]:
-        """Geometry nodes on Gamma_h (process-local), ``(n, 2)``: they lie on Gamma."""
-        self.mesh.topology.create_connectivity(1, 2)
-        nodes = dmesh.entities_to_geometry(self.mesh, 1, self.immersed_facets)
-        return self.mesh.geometry.x[nodes.ravel(), :2]
+        """Geometry nodes on Gamma_h (process-local), ``(n, gdim)``: they lie on Gamma."""
+        fdim = self.tdim - 1
+        self.mesh.topology.create_connectivity(fdim, self.tdim)
+        nodes = dmesh.entities_to_geometry(self.mesh, fdim, self.immersed_facets)
+        return self.mesh.geometry.x[nodes.ravel(), : self.tdim]
