@@ -340,6 +340,11 @@ def curved_mesh(
         raise ValueError(f"unknown map {map!r}: choose one of {MAPS}")
     if int(degree) != degree or degree < 1:
         raise ValueError(f"geometry degree must be an integer >= 1, got {degree}")
+    if cm.mesh.topology.dim != 2:
+        raise ValueError(
+            "curved tetrahedra (degree > 1) are not available yet: the straight conforming "
+            "mesh is cm.mesh"
+        )
     kind = "G" if map in ("I", "G") else "G~"
     ce = fem.coordinate_element(dmesh.CellType.triangle, degree, basix.LagrangeVariant.gll_warped)
     # The interpolated geometry is the affine image of every cell: only the positively cut
