@@ -1,7 +1,13 @@
-"""The floor benchmarks run (``--quick``) and print their ratio tables; no timing asserts."""
+"""The floor benchmarks run (``--quick``) and print their ratio tables; no timing asserts.
+
+Also the 3D comparison with gmsh (``conform_vs_gmsh_3d.py --quick``, skipped without gmsh):
+its tables and JSON, and the quality it reports (no timing asserts either).
+"""
 
 from __future__ import annotations
 
+import importlib.util
+import json
 import re
 
 import pytest
@@ -11,6 +17,7 @@ SCRIPTS = {
     "update_floor.py": 4,  # with and without the relaxation
     "conform_floor.py": 2,
     "curved_floor.py": 4,
+    "conform_floor_3d.py": 6,  # ball and torus: conform, without create_submesh, relaxed
 }
 """Benchmark -> number of table rows it prints."""
 
@@ -27,3 +34,25 @@ def test_floor_benchmark_quick(script):
     assert out.count("ratios: ") == 1, out
     if script == "update_floor.py":
         assert re.search(r"relaxation share .*equilateral: \d+ %, propeller graded: \d+ %", out)
+    if script == "conform_floor_3d.py":
+        assert re.search(r"relaxation share .*ball r=0.8: \d+ %, torus R=0.55 r=0.3: \d+ %", out)
+        # the floor builds the package's relax=False mesh (same kept cells and vertices)
+        assert out.count("the same as the floor's: True; largest vertex difference") == 2, out
+
+
+@pytest.mark.skip_in_parallel
+@pytest.mark.skipif(importlib.util.find_spec("gmsh") is None, reason="gmsh not installed")
+def test_conform_vs_gmsh_3d_quick(tmp_path):
+    out_json = tmp_path / "ball.json"
+    script = str(ROOT / "benchmarks" / "conform_vs_gmsh_3d.py")
+    out = run_mpi(1, [script, "--quick", "--out", str(out_json)], timeout=600).stdout
+    assert "Mesh the unit ball" in out and "dihedral angle histogram" in out, out
+    (row,) = json.loads(out_json.read_text())["rows"]
+    assert row["universal_total_s"] > row["conform_s"] > 0 and row["gmsh_total_s"] > 0
+    uq, gq = row["universal_quality"], row["gmsh_quality"]
+    # comparable sizes: gmsh's size is calibrated on the universal mesh's count
+    assert 0.7 < gq["n_cells"] / uq["n_cells"] < 1.4, (uq["n_cells"], gq["n_cells"])
+    for q in (uq, gq):
+        assert q["n_inverted"] == 0 and sum(q["dihedral_histogram"]) == 6 * q["n_cells"]
+    # the universal mesh's dihedral angles are better at both ends
+    assert uq["theta_min_deg"] > gq["theta_min_deg"] and uq["theta_max_deg"] < gq["theta_max_deg"]
