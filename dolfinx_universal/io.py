@@ -1,13 +1,14 @@
 """Checkpoints of curved meshes of any degree: VTKHDF, facet-tag sidecar; adios4dolfinx optional."""
 
-# write_mesh / read_mesh store a triangle mesh with a degree-k Lagrange coordinate element in
-# DOLFINx's own VTKHDF format (dolfinx.io.vtkhdf; ParaView reads it). VTKHDF Lagrange cells
-# have equispaced nodes, but DOLFINx 0.11 writes the nodes of the mesh's own variant and reads
-# degree >= 3 back as equispaced: a GLL-warped degree-4 disc written as is comes back with an
-# area error of 5e-5 instead of 1e-10. Hence write_mesh writes a copy whose nodes are the same
-# map evaluated at equispaced points, and read_mesh evaluates the read map at GLL-warped points
-# again. VTKHDF has no mesh tags in DOLFINx 0.11: facet tags go to a sidecar (tags_path), keyed
-# by the file node indices of each facet's two vertices, matched on any number of ranks.
+# write_mesh / read_mesh store a triangle or tetrahedron mesh with a degree-k Lagrange
+# coordinate element in DOLFINx's own VTKHDF format (dolfinx.io.vtkhdf; ParaView reads it).
+# VTKHDF Lagrange cells have equispaced nodes, but DOLFINx 0.11 writes the nodes of the
+# mesh's own variant and reads degree >= 3 back as equispaced: a GLL-warped degree-4 disc
+# written as is comes back with an area error of 5e-5 instead of 1e-10. Hence write_mesh
+# writes a copy whose nodes are the same map evaluated at equispaced points, and read_mesh
+# evaluates the read map at GLL-warped points again. VTKHDF has no mesh tags in DOLFINx 0.11:
+# facet tags go to a sidecar (tags_path), keyed by the file node indices of each facet's
+# vertices (two for an edge, three for a face), matched on any number of ranks.
 # write_fields writes functions for ParaView with VTXWriter (write-only). Function checkpoints
 # that can be read back need adios4dolfinx, an optional path where an MPI-enabled adios2
 # exists (PyPI's adios2 is serial and adios4dolfinx refuses it); this package does not use it.
@@ -66,9 +67,15 @@ def _on_root(comm: MPI.Comm, action: Callable[[], T]) -> T:
     return result
 
 
-def _check_triangles(msh: dmesh.Mesh, what: str) -> None:
-    if msh.topology.cell_type != dmesh.CellType.triangle or len(msh.geometry.cmaps) != 1:
-        raise ValueError(f"{what}: only triangle meshes with one coordinate element are supported")
+_CELLS = (dmesh.CellType.triangle, dmesh.CellType.tetrahedron)
+
+
+def _check_cells(msh: dmesh.Mesh, what: str) -> None:
+    if msh.topology.cell_type not in _CELLS or len(msh.geometry.cmaps) != 1:
+        raise ValueError(
+            f"{what}: only triangle and tetrahedron meshes with one coordinate element are "
+            f"supported, got {msh.topology.cell_type.name}"
+        )
 
 
 def _variant(msh: dmesh.Mesh) -> basix.LagrangeVariant:
@@ -76,25 +83,39 @@ def _variant(msh: dmesh.Mesh) -> basix.LagrangeVariant:
 
 
 def _facet_vertex_nodes(msh: dmesh.Mesh, facets: npt.NDArray[np.int32]) -> npt.NDArray[np.int32]:
-    """Process-local geometry nodes of the two vertices of each facet, ``(n, 2)``."""
+    """Process-local geometry nodes of the ``tdim`` vertices of each facet, ``(n, tdim)``."""
     top = msh.topology
-    top.create_connectivity(1, 0)
-    top.create_connectivity(0, top.dim)
-    f2v = top.connectivity(1, 0).array.reshape(-1, 2)[facets]
+    tdim = top.dim
+    top.create_connectivity(tdim - 1, 0)
+    top.create_connectivity(0, tdim)
+    f2v = top.connectivity(tdim - 1, 0).array.reshape(-1, tdim)[facets]
     nodes = dmesh.entities_to_geometry(msh, 0, f2v.ravel().astype(np.int32))
-    return nodes.reshape(-1, 2)
+    return nodes.reshape(-1, tdim)
 
 
-def _keys(pairs: npt.NDArray[np.int64], n: int) -> npt.NDArray[np.int64]:
-    """Orientation-free integer keys of node pairs ``(m, 2)`` with indices below ``n``."""
-    p = np.sort(np.asarray(pairs, dtype=np.int64).reshape(-1, 2), axis=1)
-    return p[:, 0] * np.int64(n) + p[:, 1]
+def _unique_rows(rows: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+    """Indices of the first occurrence of each distinct row of ``(m, k)``, in row order."""
+    if len(rows) == 0:
+        return np.zeros(0, dtype=np.int64)
+    return np.unique(rows, axis=0, return_index=True)[1]
+
+
+def _find_rows(table: npt.NDArray[np.int64], rows: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+    """For each row of ``rows (m, k)``: its index in ``table (n, k)`` (distinct rows), or -1."""
+    both = np.concatenate([table, rows]).reshape(-1, table.shape[1])
+    if len(both) == 0:
+        return np.zeros(0, dtype=np.int64)
+    inverse = np.unique(both, axis=0, return_inverse=True)[1].reshape(-1)
+    lookup = np.full(inverse.max() + 1, -1, dtype=np.int64)
+    lookup[inverse[: len(table)]] = np.arange(len(table))
+    return lookup[inverse[len(table) :]]
 
 
 def write_mesh(
     filename: str | Path, mesh: dmesh.Mesh, facet_tags: dmesh.MeshTags | None = None
 ) -> None:
-    """Write a triangle mesh of any geometry degree (and its facet tags) to a VTKHDF file.
+    """Write a triangle or tetrahedron mesh of any geometry degree (and its facet tags) to a
+    VTKHDF file.
 
     The nodes written are the mesh's coordinate map evaluated at the equispaced Lagrange
     points of each cell (what VTKHDF and ParaView expect); ``mesh`` itself is not changed.
@@ -105,25 +126,28 @@ def write_mesh(
     filename
         The VTKHDF file (conventionally ``.vtkhdf``), overwritten.
     mesh
-        A triangle mesh with a degree-k Lagrange coordinate element (any variant).
+        A triangle or tetrahedron mesh with a degree-k Lagrange coordinate element (any
+        variant).
     facet_tags
         Tags of facets of ``mesh`` (owned and/or ghost facets), or ``None``.
 
     Raises
     ------
     ValueError
-        If ``mesh`` is not a triangle mesh or the tags are not facet tags.
+        If ``mesh`` is neither a triangle nor a tetrahedron mesh, or the tags are not facet
+        tags.
     OSError
         If the sidecar cannot be written (on every rank).
     """
-    _check_triangles(mesh, "write_mesh")
+    _check_cells(mesh, "write_mesh")
     comm = mesh.comm
+    tdim = mesh.topology.dim
     degree = mesh.geometry.cmaps[0].degree
     out = mesh
     if degree >= 3 and _variant(mesh) != basix.LagrangeVariant.equispaced:
         # Same topology, geometry = the same map interpolated at equispaced points.
         ce = fem.coordinate_element(
-            dmesh.CellType.triangle, degree, basix.LagrangeVariant.equispaced
+            mesh.topology.cell_type, degree, basix.LagrangeVariant.equispaced
         )
         out = fem.interpolate_geometry(mesh, ce)
     vtkhdf.write_mesh(str(filename), out)
@@ -133,20 +157,22 @@ def write_mesh(
         _on_root(comm, lambda: sidecar.unlink(missing_ok=True))
         comm.barrier()
         return
-    if facet_tags.dim != mesh.topology.dim - 1:
-        raise ValueError(f"write_mesh: facet_tags has dimension {facet_tags.dim}, expected 1")
+    if facet_tags.dim != tdim - 1:
+        raise ValueError(
+            f"write_mesh: facet_tags has dimension {facet_tags.dim}, expected {tdim - 1}"
+        )
     imap = out.geometry.index_map()
     nodes = _facet_vertex_nodes(out, facet_tags.indices.astype(np.int32))
     # Written node order = global geometry index (each rank writes its owned range).
-    pairs = imap.local_to_global(nodes.ravel()).reshape(-1, 2)
-    pairs = np.sort(pairs.astype(np.int64), axis=1)
-    gathered = comm.gather((pairs, np.asarray(facet_tags.values)), root=0)
+    rows = imap.local_to_global(nodes.ravel()).reshape(-1, tdim)
+    rows = np.sort(rows.astype(np.int64), axis=1)
+    gathered = comm.gather((rows, np.asarray(facet_tags.values)), root=0)
 
     def save() -> None:
-        p = np.concatenate([g[0] for g in gathered]).reshape(-1, 2)
+        p = np.concatenate([g[0] for g in gathered]).reshape(-1, tdim)
         v = np.concatenate([g[1] for g in gathered])
         # A facet tagged on several ranks (ghosts) is stored once.
-        _, first = np.unique(_keys(p, imap.size_global), return_index=True)
+        first = _unique_rows(p)
         with open(sidecar, "wb") as f:  # np.savez would append ".npz" to other names
             np.savez(
                 f,
@@ -164,6 +190,7 @@ def write_mesh(
 def _tags_from_file(raw: dmesh.Mesh, msh: dmesh.Mesh, sidecar: Path) -> dmesh.MeshTags | None:
     """Facet tags of ``msh`` (created from ``raw``) from the sidecar of the file of ``raw``."""
     comm = msh.comm
+    tdim = msh.topology.dim
 
     def load() -> dict | None:
         if not sidecar.exists():
@@ -176,40 +203,40 @@ def _tags_from_file(raw: dmesh.Mesh, msh: dmesh.Mesh, sidecar: Path) -> dmesh.Me
         return None
     imap = raw.geometry.index_map()
     n = imap.size_global
-    if int(data["num_nodes"]) != n or int(data["dim"]) != 1:
+    if int(data["num_nodes"]) != n or int(data["dim"]) != tdim - 1:
         raise ValueError(
-            f"{sidecar} does not belong to its mesh file ({int(data['num_nodes'])} nodes "
-            f"recorded, {n} read)"
+            f"{sidecar} does not belong to its mesh file ({int(data['num_nodes'])} nodes of "
+            f"facets of dimension {int(data['dim'])} recorded, {n} nodes of a {tdim}D mesh read)"
         )
     # File node index -> global node index of `raw` (= the input index of `msh`), translated
-    # on the ranks that hold both vertices of a facet; every tagged facet lies on one.
+    # on the ranks that hold all vertices of a facet; every tagged facet lies on one.
     nloc = imap.size_local + imap.num_ghosts
     file_idx = np.asarray(raw.geometry.input_global_indices, dtype=np.int64)[:nloc]
     order = np.argsort(file_idx)
     sorted_idx = file_idx[order]
-    wanted = np.asarray(data["vertices"], dtype=np.int64).reshape(-1, 2)
+    wanted = np.asarray(data["vertices"], dtype=np.int64).reshape(-1, tdim)
     pos = np.minimum(np.searchsorted(sorted_idx, wanted), max(len(sorted_idx) - 1, 0))
     here = (
         np.all(sorted_idx[pos] == wanted, axis=1)
         if len(sorted_idx)
         else np.zeros(len(wanted), bool)
     )
-    glob = imap.local_to_global(order[pos[here]].ravel().astype(np.int32)).reshape(-1, 2)
-    found = comm.allgather((_keys(glob, n), np.asarray(data["values"])[here]))
-    keys = np.concatenate([f[0] for f in found])
+    glob = imap.local_to_global(order[pos[here]].ravel().astype(np.int32)).reshape(-1, tdim)
+    found = comm.allgather((np.sort(glob.astype(np.int64), axis=1), data["values"][here]))
+    rows = np.concatenate([f[0] for f in found]).reshape(-1, tdim)
     values = np.concatenate([f[1] for f in found]).astype(data["values"].dtype)
-    keys, first = np.unique(keys, return_index=True)
-    values = values[first]
+    first = _unique_rows(rows)
+    rows, values = rows[first], values[first]
 
-    msh.topology.create_entities(1)
-    fmap = msh.topology.index_map(1)
+    msh.topology.create_entities(tdim - 1)
+    fmap = msh.topology.index_map(tdim - 1)
     facets = np.arange(fmap.size_local + fmap.num_ghosts, dtype=np.int32)
     nodes = _facet_vertex_nodes(msh, facets)
     inp = np.asarray(msh.geometry.input_global_indices, dtype=np.int64)
-    fkeys = _keys(inp[nodes.ravel()], n)
-    pos = np.minimum(np.searchsorted(keys, fkeys), max(len(keys) - 1, 0))
-    hit = keys[pos] == fkeys if len(keys) else np.zeros(len(fkeys), bool)
-    return dmesh.meshtags(msh, 1, facets[hit], values[pos[hit]])
+    frows = np.sort(inp[nodes.ravel()].reshape(-1, tdim), axis=1)
+    index = _find_rows(rows, frows)
+    hit = index >= 0
+    return dmesh.meshtags(msh, tdim - 1, facets[hit], values[index[hit]])
 
 
 def read_mesh(
@@ -218,12 +245,13 @@ def read_mesh(
     *,
     variant: basix.LagrangeVariant = basix.LagrangeVariant.gll_warped,
 ) -> tuple[dmesh.Mesh, dmesh.MeshTags | None]:
-    """Read a triangle mesh (and its facet tags) written by :func:`write_mesh`, on any ranks.
+    """Read a triangle or tetrahedron mesh (and its facet tags) written by :func:`write_mesh`,
+    on any ranks.
 
     The file's equispaced degree-k map is evaluated at the nodes of ``variant`` in every
     cell, and the mesh is recreated with that Lagrange coordinate element (geometric
-    dimension 2) and shared-facet ghosts. Plain VTKHDF triangle files of other writers are
-    read too (without tags). Collective.
+    dimension 2 for triangles, 3 for tetrahedra) and shared-facet ghosts. Plain VTKHDF
+    triangle and tetrahedron files of other writers are read too (without tags). Collective.
 
     Parameters
     ----------
@@ -233,7 +261,7 @@ def read_mesh(
         The VTKHDF file.
     variant
         Lagrange variant of the returned coordinate element; the default ``gll_warped`` is
-        that of :func:`~dolfinx_universal.curved.curved_mesh`.
+        that of :func:`~dolfinx_universal.curved.curved_mesh` (irrelevant for degree <= 2).
 
     Returns
     -------
@@ -246,28 +274,29 @@ def read_mesh(
     Raises
     ------
     ValueError
-        If the file is not a triangle mesh or the sidecar belongs to another mesh.
+        If the file is neither a triangle nor a tetrahedron mesh, or the sidecar belongs to
+        another mesh.
     """
-    raw = vtkhdf.read_mesh(comm, str(filename), gdim=2)
-    _check_triangles(raw, "read_mesh")
+    raw = vtkhdf.read_mesh(comm, str(filename), gdim=3)
+    _check_cells(raw, "read_mesh")
+    tdim = raw.topology.dim
+    gdim = tdim  # triangles in the plane, tetrahedra in space
+    cell = raw.topology.cell_type.name
     degree = raw.geometry.cmaps[0].degree
-    source = basix.create_element(
-        basix.ElementFamily.P, basix.CellType.triangle, degree, _variant(raw)
-    )
-    target = basix.create_element(basix.ElementFamily.P, basix.CellType.triangle, degree, variant)
+    bcell = basix.CellType[cell]
+    source = basix.create_element(basix.ElementFamily.P, bcell, degree, _variant(raw))
+    target = basix.create_element(basix.ElementFamily.P, bcell, degree, variant)
     phi = source.tabulate(0, target.points)[0, :, :, 0]  # (target points, source nodes)
     dofmap = raw.geometry.dofmaps[0]
     imap = raw.geometry.index_map()
     # Rows of a geometry dofmap follow the reference node order of each cell (vertices,
     # edges in the cell's own direction, interior), as the coordinate element evaluates them.
-    cell_x = np.einsum("pj,cjd->cpd", phi, raw.geometry.x[dofmap, :2])
-    x = np.empty((imap.size_local + imap.num_ghosts, 2))
-    x[dofmap.ravel()] = cell_x.reshape(-1, 2)  # shared nodes agree to rounding
-    num_cells = raw.topology.index_map(2).size_local
+    cell_x = np.einsum("pj,cjd->cpd", phi, raw.geometry.x[dofmap, :gdim])
+    x = np.empty((imap.size_local + imap.num_ghosts, gdim))
+    x[dofmap.ravel()] = cell_x.reshape(-1, gdim)  # shared nodes agree to rounding
+    num_cells = raw.topology.index_map(tdim).size_local
     cells = imap.local_to_global(dofmap[:num_cells].ravel()).reshape(num_cells, -1)
-    element = basix.ufl.element(
-        "Lagrange", "triangle", degree, shape=(2,), lagrange_variant=variant
-    )
+    element = basix.ufl.element("Lagrange", cell, degree, shape=(gdim,), lagrange_variant=variant)
     msh = dmesh.create_mesh(
         comm,
         cells.astype(np.int64),

@@ -1,4 +1,5 @@
-"""Checkpoints of curved meshes: VTKHDF round trips for degrees 1-4, tags, ranks, VTX output."""
+"""Checkpoints of curved meshes: VTKHDF round trips of triangles (degrees 1-4) and
+tetrahedra (conformed balls, degree 3), tags, ranks, VTX output."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ import numpy as np
 import pytest
 from conftest import needs_ranks
 from dolfinx.io import vtkhdf
-from io_cases import cases, fingerprint
+from io_cases import cases, fingerprint, tetrahedron_cases
 from scipy.spatial import cKDTree
 
 from dolfinx_universal import io as duio
@@ -32,9 +33,9 @@ def meshes():
     return cases(comm)
 
 
-def same_points(a: list, b: list, atol: float = NODE_ATOL) -> None:
+def same_points(a: list, b: list, atol: float = NODE_ATOL, dim: int = 2) -> None:
     """The point sets are equal up to ``atol``: one-to-one nearest neighbours (order-free)."""
-    a, b = np.asarray(a).reshape(-1, 2), np.asarray(b).reshape(-1, 2)
+    a, b = np.asarray(a).reshape(-1, dim), np.asarray(b).reshape(-1, dim)
     assert a.shape == b.shape
     if len(a) == 0:
         return
@@ -43,17 +44,17 @@ def same_points(a: list, b: list, atol: float = NODE_ATOL) -> None:
     assert len(np.unique(idx)) == len(a)
 
 
-def assert_same(a: dict, b: dict) -> None:
-    """Two fingerprints (tests/mpi/io_roundtrip.py) describe the same mesh and tags."""
+def assert_same(a: dict, b: dict, dim: int = 2) -> None:
+    """Two fingerprints (:func:`io_cases.fingerprint`) describe the same mesh and tags."""
     assert a["degree"] == b["degree"]
     assert a["variant"] == b["variant"]
     assert a["num_cells"] == b["num_cells"]
     assert a["area"] == pytest.approx(b["area"], rel=AREA_RTOL)
-    same_points(a["nodes"], b["nodes"])
+    same_points(a["nodes"], b["nodes"], dim=dim)
     assert a["tags"].keys() == b["tags"].keys()
     for value in a["tags"]:
         assert a["tags"][value]["count"] == b["tags"][value]["count"]
-        same_points(a["tags"][value]["midpoints"], b["tags"][value]["midpoints"])
+        same_points(a["tags"][value]["midpoints"], b["tags"][value]["midpoints"], dim=dim)
 
 
 @pytest.mark.parametrize("name", ["disc1", "disc2", "disc3", "disc4", "holed3"])
@@ -164,3 +165,55 @@ def test_write_and_read_on_other_rank_counts(mpi_tmp_path):
             assert_same(written[name], together)
             if name == "disc4":
                 assert abs(together["area"] - np.pi) < 1e-9
+
+
+@pytest.fixture(scope="module")
+def tet_meshes():
+    return tetrahedron_cases(comm)
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("name", ["ball", "hole", "box3"])
+def test_tetrahedra_round_trip(tet_meshes, mpi_tmp_path, name):
+    """Conformed balls (straight) and a degree-3 box: the same mesh, volume and face tags
+    (on 1 rank, and written and read on all ranks under mpirun)."""
+    msh0, tags0 = tet_meshes[name]
+    filename = mpi_tmp_path / f"{name}.vtkhdf"
+    duio.write_mesh(filename, msh0, tags0)
+    msh, tags = duio.read_mesh(comm, filename)
+    assert tags is not None and tags.dim == 2
+    assert msh.topology.dim == 3 and msh.geometry.dim == 3
+    a, b = fingerprint(msh0, tags0), fingerprint(msh, tags)
+    if comm.rank == 0:
+        assert_same(a, b, dim=3)
+        assert b["tags"]["1"]["count"] > 0
+        if name != "ball":
+            assert b["tags"]["2"]["count"] > 0
+        if name == "ball":  # the conforming mesh's own O(h^2) volume error
+            assert abs(b["area"] / (4 / 3 * np.pi) - 1) < 0.8 * 0.25**2
+    # Read alone what all ranks wrote.
+    alone = fingerprint(*duio.read_mesh(MPI.COMM_SELF, filename))
+    if comm.rank == 0:
+        assert_same(a, alone, dim=3)
+
+
+def test_tetrahedra_sidecar_checks(tet_meshes, meshes, mpi_tmp_path):
+    """Tags of the wrong dimension are refused; a triangle sidecar does not fit a tet mesh."""
+    msh, tags = tet_meshes["ball"]
+    edges = dmesh_meshtags(msh, 1)
+    with pytest.raises(ValueError, match="expected 2"):
+        duio.write_mesh(mpi_tmp_path / "e.vtkhdf", msh, edges)
+    duio.write_mesh(mpi_tmp_path / "tri.vtkhdf", meshes["disc1"].mesh, meshes["disc1"].facet_tags)
+    duio.write_mesh(mpi_tmp_path / "tet.vtkhdf", msh)
+    if comm.rank == 0:
+        shutil.copy(duio.tags_path(mpi_tmp_path / "tri.vtkhdf"), mpi_tmp_path / "tet.tags.npz")
+    comm.barrier()
+    with pytest.raises(ValueError, match="does not belong"):
+        duio.read_mesh(comm, mpi_tmp_path / "tet.vtkhdf")
+
+
+def dmesh_meshtags(msh, dim: int):
+    from dolfinx import mesh as dmesh
+
+    msh.topology.create_entities(dim)
+    return dmesh.meshtags(msh, dim, np.zeros(1, np.int32), np.ones(1, np.int32))
