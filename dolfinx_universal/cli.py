@@ -1,4 +1,4 @@
-"""Command line: mesh a curved domain on an equilateral background and write mesh files."""
+"""Command line: mesh a curved 2D domain or a solid bounded by a surface and write mesh files."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import time
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NoReturn
+from typing import TYPE_CHECKING, Any, NamedTuple, NoReturn
 
 from mpi4py import MPI
 
@@ -21,7 +21,17 @@ import numpy.typing as npt
 if TYPE_CHECKING:
     from .boundaries import Boundary
 
-__all__ = ["ArgumentError", "build_parser", "main", "make_boundary", "polar_functions", "run"]
+__all__ = [
+    "ArgumentError",
+    "ImplicitFunctions",
+    "build_parser",
+    "grid_topology",
+    "implicit_functions",
+    "main",
+    "make_boundary",
+    "polar_functions",
+    "run",
+]
 
 PROG = "dolfinx-universal"
 MAPS = ("I", "I~", "G", "G~")
@@ -89,19 +99,30 @@ _FD_STEP = 1e-3
 
 def _compile_expression(expr: str) -> Callable[[npt.ArrayLike], npt.NDArray]:
     """Compile a restricted numpy expression in ``theta`` into a vectorised function."""
+    g = _compile_in(expr, ("theta",), "polar")
+
+    def f(theta: npt.ArrayLike) -> npt.NDArray:
+        return g(np.asarray(theta))
+
+    return f
+
+
+def _compile_in(expr: str, variables: tuple[str, ...], what: str) -> Callable[..., npt.NDArray]:
+    """Compile a restricted numpy expression in ``variables`` into a vectorised function of
+    as many arrays (of one shape, the shape of the result)."""
     try:
         tree = ast.parse(expr.strip(), mode="eval")
     except SyntaxError as e:
-        raise ArgumentError(f"invalid polar expression {expr!r}: {e.msg}") from None
+        raise ArgumentError(f"invalid {what} expression {expr!r}: {e.msg}") from None
     for node in ast.walk(tree):
         if not isinstance(node, _NODES):
             raise ArgumentError(
-                f"invalid polar expression {expr!r}: {type(node).__name__} is not allowed"
+                f"invalid {what} expression {expr!r}: {type(node).__name__} is not allowed"
             )
-        if isinstance(node, ast.Name) and node.id != "theta" and node.id not in _NAMESPACE:
+        if isinstance(node, ast.Name) and node.id not in variables and node.id not in _NAMESPACE:
             raise ArgumentError(
-                f"invalid polar expression {expr!r}: unknown name {node.id!r} (use theta, "
-                f"{', '.join(sorted(_NAMESPACE))})"
+                f"invalid {what} expression {expr!r}: unknown name {node.id!r} (use "
+                f"{', '.join(variables)}, {', '.join(sorted(_NAMESPACE))})"
             )
         if isinstance(node, ast.Attribute) and (
             node.attr.startswith("_")
@@ -109,17 +130,16 @@ def _compile_expression(expr: str) -> Callable[[npt.ArrayLike], npt.NDArray]:
             or node.value.id != "np"
         ):
             raise ArgumentError(
-                f"invalid polar expression {expr!r}: only np.<function> attributes are allowed"
+                f"invalid {what} expression {expr!r}: only np.<function> attributes are allowed"
             )
         if isinstance(node, ast.Constant) and not isinstance(node.value, int | float | complex):
-            raise ArgumentError(f"invalid polar expression {expr!r}: non-numeric constant")
-    code = compile(tree, "<polar>", "eval")
+            raise ArgumentError(f"invalid {what} expression {expr!r}: non-numeric constant")
+    code = compile(tree, f"<{what}>", "eval")
 
-    def f(theta: npt.ArrayLike) -> npt.NDArray:
-        theta = np.asarray(theta)
+    def f(*args: npt.NDArray) -> npt.NDArray:
         with np.errstate(all="ignore"):
-            value = eval(code, {"__builtins__": {}}, {**_NAMESPACE, "theta": theta})
-        return np.broadcast_to(np.asarray(value), theta.shape)
+            value = eval(code, {"__builtins__": {}}, {**_NAMESPACE, **dict(zip(variables, args))})
+        return np.broadcast_to(np.asarray(value), np.shape(args[0]))
 
     return f
 
@@ -215,6 +235,236 @@ def polar_functions(
 
 
 # --------------------------------------------------------------------------------------------
+# Implicit surfaces from expressions
+# --------------------------------------------------------------------------------------------
+
+_GRID = 64
+"""Samples per side of the grids on which an implicit surface's bounding box is found."""
+_HALF_WIDTHS = tuple(2.0**k for k in range(11)) + tuple(2.0**-k for k in range(1, 11))
+"""Half-widths of the cubes around the centre searched for the inside of an implicit
+surface, in this order."""
+_IMPLICIT_FD_STEP = 1e-3
+"""Step of the central differences of ``phi``, relative to the longest side of its box."""
+
+
+def _grid(box: Float, n: int = _GRID) -> tuple[Float, float]:
+    """Points ``(n^3, 3)`` of a regular grid over ``box`` (its faces included) and its spacing."""
+    axes = [np.linspace(box[0, i], box[1, i], n) for i in range(3)]
+    pts = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    return pts, float(np.max((box[1] - box[0]) / (n - 1)))
+
+
+def _on_grid_boundary(n: int = _GRID) -> npt.NDArray[np.bool_]:
+    """Mask of the grid points of :func:`_grid` on the faces of its box, ``(n^3,)``."""
+    i = np.indices((n, n, n)).reshape(3, -1)
+    return ((i == 0) | (i == n - 1)).any(axis=0)
+
+
+def grid_topology(inside: npt.NDArray[np.bool_]) -> tuple[int, int]:
+    """Number of components and total genus of the surface of a voxelised solid.
+
+    ``inside (n, n, n)``: the grid points in the solid, none on the grid's faces. The solid
+    is the cubical complex of these points (6-connected: edges, squares and cubes whose
+    corners are all inside); its Euler characteristic ``chi = V - E + F - C`` is half that
+    of its surface. The surface has one component per component of the solid and per
+    cavity (a 26-connected component of the outside points other than the exterior), and
+    total genus ``components - chi``.
+    """
+    from scipy import ndimage
+
+    b = np.asarray(inside, dtype=bool)
+    v = int(b.sum())
+    e = sum(int((b[s0] & b[s1]).sum()) for s0, s1 in _shifts(1))
+    f = sum(int(np.logical_and.reduce([b[s] for s in q]).sum()) for q in _shifts(2))
+    c = int(np.logical_and.reduce([b[s] for s in _shifts(3)[0]]).sum())
+    chi = v - e + f - c
+    solids = ndimage.label(b)[1]
+    outside = ndimage.label(~b, structure=np.ones((3, 3, 3)))[1]
+    components = solids + outside - 1
+    return components, components - chi
+
+
+def _shifts(k: int) -> list[tuple[tuple[slice, ...], ...]]:
+    """Index tuples of the corners of the unit squares (k = 2), edges (k = 1) or cubes (3)
+    of a 3D grid, one entry per orientation."""
+    from itertools import combinations, product
+
+    out = []
+    for axes in combinations(range(3), k):
+        corners = []
+        for offset in product((0, 1), repeat=k):
+            sl = [slice(None)] * 3
+            for a, o in zip(axes, offset):
+                sl[a] = slice(o, None if o else -1)
+            corners.append(tuple(sl))
+        out.append(tuple(corners))
+    return out
+
+
+class ImplicitFunctions(NamedTuple):
+    """What :func:`implicit_functions` derives from an expression."""
+
+    phi: Callable[[Float], Float]
+    """Level-set function of points ``(n, 3)``, ``(n,)``."""
+    grad: Callable[[Float], Float]
+    """Its gradient, ``(n, 3)``."""
+    box: Float
+    """``[[xmin, ymin, zmin], [xmax, ymax, zmax]]`` containing the surface."""
+    gradient: str
+    """``"complex-step"`` or ``"finite-difference"``."""
+    components: int
+    """Components of the surface counted on the sampling grid (:func:`grid_topology`)."""
+    genus: int
+    """Total genus of the surface counted on the sampling grid."""
+
+
+def implicit_functions(
+    expr: str, center: npt.ArrayLike, box: npt.ArrayLike | None = None
+) -> ImplicitFunctions:
+    """``phi``, ``grad phi`` and a bounding box of the surface ``phi = 0`` of an expression.
+
+    The expression may use ``x, y, z`` (coordinates relative to ``center``), ``np`` and
+    ``pi, sin, cos, tan, exp, log, sqrt, sinh, cosh, tanh, arctan``; ``phi < 0`` inside
+    the solid, ``phi > 0`` outside.
+
+    The gradient is computed by the complex step, ``d phi / dx_i = Im phi(p + i t e_i) / t``
+    with ``t = 1e-20`` (exact to rounding for expressions analytic in ``x, y, z``), after a
+    check against fourth-order central differences near the surface; expressions that do
+    not accept complex input (or are not analytic) use those differences, with a step of
+    ``1e-3`` times the longest side of the box.
+
+    The bounding box is ``box`` when given (absolute coordinates: ``phi`` must be negative
+    somewhere on a grid of ``64^3`` points over it and positive on its faces). Otherwise
+    ``phi`` is sampled on grids of ``64^3`` points over cubes of half-width ``2^k`` around
+    the centre (``k = 0, 1, ..., 10``, then ``-1, ..., -10``) until the negative samples of
+    one lie strictly inside it, then on a grid over the box of those samples padded by two
+    spacings; the box is that of the negative samples of this second grid, padded by two of
+    its spacings. Parts of the solid thinner than a spacing of the first grid (1/31 of the
+    cube's half-width) may be missed: give ``box`` for such shapes. The number of
+    components and the genus of the surface are counted on the last grid
+    (:func:`grid_topology`; right when the grid resolves the solid's parts and gaps).
+
+    Returns
+    -------
+    The functions, the box and the topology (:class:`ImplicitFunctions`).
+
+    Raises
+    ------
+    ArgumentError
+        If the expression is invalid or not finite, or no box with the surface inside is
+        found (or ``box`` does not contain it).
+    """
+    f = _compile_in(expr, ("x", "y", "z"), "implicit")
+    c = np.asarray(center, dtype=np.float64).reshape(3)
+
+    def phi(p: Float) -> Float:
+        p = np.asarray(p, dtype=np.float64).reshape(-1, 3)
+        return np.real(f(p[:, 0] - c[0], p[:, 1] - c[1], p[:, 2] - c[2])).astype(np.float64)
+
+    def sample(b: Float) -> tuple[Float, Float, float]:
+        pts, spacing = _grid(b)
+        try:
+            values = phi(pts)
+        except Exception as e:  # any error of the user's expression is an argument error
+            raise ArgumentError(f"cannot evaluate implicit expression {expr!r}: {e}") from None
+        bad = ~np.isfinite(values)
+        if bad.any():
+            q = pts[np.argmax(bad)]
+            raise ArgumentError(
+                f"implicit expression {expr!r} is not finite at ({q[0]:.4g}, {q[1]:.4g}, "
+                f"{q[2]:.4g})"
+            )
+        return pts, values, spacing
+
+    edge = _on_grid_boundary()
+    if box is not None:
+        b = np.asarray(box, dtype=np.float64).reshape(2, 3)
+        if not (np.isfinite(b).all() and (b[1] > b[0]).all()):
+            raise ArgumentError(
+                f"--box must be X0 Y0 Z0 X1 Y1 Z1 with X0 < X1, Y0 < Y1, Z0 < Z1, got "
+                f"{b.ravel().tolist()}"
+            )
+        pts, values, _ = sample(b)
+        if not (values < 0).any():
+            raise ArgumentError(
+                f"implicit expression {expr!r} has no negative value on a {_GRID}^3 grid in "
+                "--box: the solid is phi < 0 (empty, or thinner than the grid: enlarge it)"
+            )
+        if (values[edge] <= 0).any():
+            q = pts[edge][np.argmin(values[edge])]
+            raise ArgumentError(
+                f"the implicit surface leaves --box near ({q[0]:.4g}, {q[1]:.4g}, "
+                f"{q[2]:.4g}) (phi <= 0 on the box's faces): enlarge the box"
+            )
+    else:
+        found: Float | None = None
+        for half in _HALF_WIDTHS:
+            cube = np.array([c - half, c + half])
+            pts, values, spacing = sample(cube)
+            inside = values < 0
+            if inside.any() and not inside[edge].any():
+                found = np.array([pts[inside].min(axis=0), pts[inside].max(axis=0)])
+                found += np.array([-2.0, 2.0])[:, None] * spacing
+                break
+        if found is None:
+            raise ArgumentError(
+                f"implicit expression {expr!r}: found no solid (phi < 0) strictly inside a cube "
+                f"of half-width 2^-10 to 2^10 around the center {c.tolist()}: check the sign "
+                "(negative inside) or give --box"
+            )
+        pts, values, spacing = sample(found)
+        inside = values < 0
+        b = np.array([pts[inside].min(axis=0), pts[inside].max(axis=0)])
+        b += np.array([-2.0, 2.0])[:, None] * spacing
+
+    step = _IMPLICIT_FD_STEP * float(np.max(b[1] - b[0]))
+    unit = np.eye(3)
+
+    def grad_fd(p: Float) -> Float:
+        p = np.asarray(p, dtype=np.float64).reshape(-1, 3)
+        cols = []
+        for j in range(3):  # three directions, not a loop over points
+            e = step * unit[j]
+            cols.append(
+                (-phi(p + 2 * e) + 8 * phi(p + e) - 8 * phi(p - e) + phi(p - 2 * e)) / (12 * step)
+            )
+        return np.column_stack(cols)
+
+    def grad_cs(p: Float) -> Float:
+        p = np.asarray(p, dtype=np.float64).reshape(-1, 3) - c
+        cols = []
+        for j in range(3):
+            q = p.astype(np.complex128)
+            q[:, j] += 1j * _COMPLEX_STEP
+            cols.append(np.imag(f(q[:, 0], q[:, 1], q[:, 2])) / _COMPLEX_STEP)
+        return np.column_stack(cols).astype(np.float64)
+
+    # Check the complex step near the surface: the samples with a neighbour of the other sign.
+    near = pts[np.abs(values) <= np.quantile(np.abs(values), 0.02)][:2000]
+    ok = False
+    try:
+        with np.errstate(all="ignore"):
+            z = f(*(near - c + 1j * _COMPLEX_STEP * unit[0]).T)
+            ok = np.iscomplexobj(z) and bool(np.all(np.isfinite(z)))
+            if ok:
+                ok = np.allclose(np.real(z), phi(near), rtol=1e-12, atol=1e-14)
+            if ok:
+                g_fd = grad_fd(near)
+                g_cs = grad_cs(near)
+                scale = max(float(np.abs(g_fd).max()), 1e-300)
+                ok = (
+                    bool(np.all(np.isfinite(g_cs)))
+                    and float(np.abs(g_cs - g_fd).max()) <= 1e-6 * scale
+                )
+    except Exception:  # not complex-safe: keep finite differences
+        ok = False
+    components, genus = grid_topology((values < 0).reshape((_GRID,) * 3))
+    if ok:
+        return ImplicitFunctions(phi, grad_cs, b, "complex-step", components, genus)
+    return ImplicitFunctions(phi, grad_fd, b, "finite-difference", components, genus)
+
+
+# --------------------------------------------------------------------------------------------
 # Arguments
 # --------------------------------------------------------------------------------------------
 
@@ -232,23 +482,26 @@ def build_parser() -> argparse.ArgumentParser:
     p = _Parser(
         prog=PROG,
         description=(
-            "Mesh the domain bounded by a closed curve with a universal mesh (Rangarajan & "
-            "Lew 2014): a background triangulation of the curve's bounding box, graded "
-            "automatically from the curve's curvature and feature sizes (or equilateral with "
-            "--uniform), is conformed to the curve by snapping the vertices of the positive "
-            "edges onto it and relaxing nearby interior vertices (no vertex added); where a "
-            "validity check fails the background is refined there and the curve meshed "
-            "again. Optionally the cells along the curve are curved (degree-K Lagrange "
-            "geometry). Writes mesh.vtkhdf + mesh.tags.npz (a checkpoint for any degree: "
-            "dolfinx_universal.io.read_mesh reads it back with its facet tags; ParaView "
-            "reads the .vtkhdf), mesh.bp (VTX), mesh.xdmf (grids 'mesh' and 'facet_tags': 1 = "
-            "immersed boundary, 2 = outer; K <= 2 only), mesh.png and summary.json (with the "
-            "validity certificate). Lengths are in the units of the curve's coordinates. "
-            "Runs under mpirun (only rank 0 prints and plots)."
+            "Mesh the domain bounded by a closed curve (2D) or a closed surface (3D) with a "
+            "universal mesh (Rangarajan & Lew 2014; Rangarajan, Kabaria & Lew 2019): a "
+            "background mesh of the shape's bounding box is conformed to the boundary by "
+            "snapping the vertices of the positive edges (faces) onto it and relaxing nearby "
+            "interior vertices (no vertex added). Curves: a triangulation graded automatically "
+            "from the curve's curvature and feature sizes (or equilateral with --uniform), "
+            "refined where a validity check fails; optionally the cells along the curve are "
+            "curved (degree-K Lagrange geometry). Surfaces: a tetrahedral background sized "
+            "by the surface's local feature size (at most H; dolfinx_universal.mesh_domain), "
+            "refined while a check fails (with --uniform: one A15 lattice of size H); "
+            "straight tetrahedra only (K = 1). Writes mesh.vtkhdf + mesh.tags.npz (a "
+            "checkpoint for any degree: dolfinx_universal.io.read_mesh reads it back with its "
+            "facet tags; ParaView reads the .vtkhdf), mesh.bp (VTX), mesh.xdmf (grids 'mesh' "
+            "and 'facet_tags': 1 = immersed boundary, 2 = outer; K <= 2 only), mesh.png and "
+            "summary.json (with the validity certificate). Lengths are in the units of the "
+            "shape's coordinates. Runs under mpirun (only rank 0 prints and plots)."
         ),
         formatter_class=_Formatter,
     )
-    shape = p.add_argument_group("shape (exactly one)")
+    shape = p.add_argument_group("shape (exactly one): curves in 2D, surfaces in 3D")
     g = shape.add_mutually_exclusive_group(required=True)
     g.add_argument("--circle", type=float, metavar="R", help="circle of radius R")
     g.add_argument(
@@ -270,13 +523,42 @@ def build_parser() -> argparse.ArgumentParser:
         type=Path,
         help="closed periodic cubic spline through the points of a CSV (x,y per line) or JSON file",
     )
+    g.add_argument("--sphere", type=float, metavar="R", help="sphere of radius R (3D)")
+    g.add_argument(
+        "--ellipsoid",
+        type=float,
+        nargs=3,
+        metavar=("A", "B", "C"),
+        help="ellipsoid of semi-axes A, B, C along x, y, z (3D)",
+    )
+    g.add_argument(
+        "--torus",
+        type=float,
+        nargs=2,
+        metavar=("R", "r"),
+        help="ring torus of major radius R and minor radius r < R, around --axis (3D)",
+    )
+    g.add_argument(
+        "--implicit",
+        metavar="EXPR",
+        help=(
+            "the solid phi(x, y, z) < 0 of a numpy expression in x, y, z (relative to the "
+            "center), using the names of --polar, e.g. 'x**2 + 2*y**2 + 3*z**2 - 1' (3D); "
+            "grad phi by complex step (4th-order central differences when the expression is "
+            "not complex-safe); the surface's bounding box from --box, else found by "
+            "sampling phi on 64^3 grids over cubes of half-width 1, 2, 4, ..., 1024, 1/2, "
+            "..., 1/1024 around the center until phi < 0 lies strictly inside one (give "
+            "--box for thin solids); its genus and number of components are counted on "
+            "that grid unless --genus and --components give them"
+        ),
+    )
     shape.add_argument(
         "--center",
         type=float,
-        nargs=2,
-        default=(0.0, 0.0),
-        metavar=("X", "Y"),
-        help="center of the circle, ellipse or polar curve",
+        nargs="+",
+        default=None,
+        metavar="C",
+        help="center of the shape: X Y for curves, X Y Z for surfaces [default: the origin]",
     )
     shape.add_argument(
         "--angle",
@@ -285,6 +567,39 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="DEG",
         help="rotation of the ellipse's A axis from the x axis, in degrees",
     )
+    shape.add_argument(
+        "--axis",
+        type=float,
+        nargs=3,
+        default=None,
+        metavar=("X", "Y", "Z"),
+        help="axis of the torus [default: 0 0 1]",
+    )
+    shape.add_argument(
+        "--box",
+        type=float,
+        nargs=6,
+        default=None,
+        metavar=("X0", "Y0", "Z0", "X1", "Y1", "Z1"),
+        help="box containing the implicit surface (absolute coordinates) [default: found by "
+        "sampling, see --implicit]",
+    )
+    shape.add_argument(
+        "--genus",
+        type=int,
+        default=None,
+        metavar="G",
+        help="total genus of the implicit surface (0 for a sphere, 1 for a torus) [default: "
+        "counted on the sampling grid]",
+    )
+    shape.add_argument(
+        "--components",
+        type=int,
+        default=None,
+        metavar="N",
+        help="number of connected components of the implicit surface [default: counted on "
+        "the sampling grid]",
+    )
     m = p.add_argument_group("meshing")
     m.add_argument(
         "--h",
@@ -292,23 +607,25 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="H",
         help="largest mesh size (length units): the background is graded from the curve's "
-        "curvature and feature sizes up to H and refined where a check fails; with "
-        "--uniform, the edge length of the equilateral background [default: 1/10 (graded) "
-        "or 1/20 (--uniform) of the larger side of the shape's bounding box, to 3 digits]",
+        "curvature and feature sizes up to H (surfaces: sized by the surface's feature "
+        "size, at most H) and refined where a check fails; with --uniform, the "
+        "edge length of the equilateral background (surfaces: the size of the A15 "
+        "background) [default: 1/10 (graded, surfaces) or 1/20 (--uniform curves) of the "
+        "larger side of the shape's bounding box, to 3 digits]",
     )
     m.add_argument(
         "--uniform",
         action="store_true",
-        help="use one equilateral background of edge H instead of the automatically sized "
-        "graded one (fails with an error where H is too coarse for the curve)",
+        help="use one equilateral (surfaces: A15) background of size H instead of the "
+        "automatically sized one (fails with an error where H is too coarse for the shape)",
     )
     m.add_argument(
         "--min-angle",
         type=float,
         default=10.0,
         metavar="DEG",
-        help="quality floor: smallest angle of the conforming triangles (graded mode refines "
-        "below it; --uniform warns)",
+        help="quality floor: smallest angle of the conforming triangles (dihedral angle of "
+        "the tetrahedra; graded mode refines below it; --uniform warns)",
     )
     m.add_argument(
         "--margin",
@@ -344,7 +661,8 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         default=1,
         metavar="K",
-        help="geometry degree; K > 1 curves the cells along the curve",
+        help="geometry degree; K > 1 curves the cells along the curve (curves only: "
+        "surfaces need K = 1)",
     )
     m.add_argument(
         "--map",
@@ -372,8 +690,39 @@ def _positive(name: str, value: float | None) -> None:
         raise ArgumentError(f"{name} must be a positive number, got {value}")
 
 
+_SURFACES = ("sphere", "ellipsoid", "torus", "implicit")
+
+
+def _shape_name(args: argparse.Namespace) -> str:
+    """The chosen shape option, e.g. ``"circle"`` or ``"torus"``."""
+    for name in ("circle", "ellipse", "polar", "spline", *_SURFACES):
+        if getattr(args, name, None) is not None:
+            return name
+    raise ArgumentError("one of the shape arguments is required")
+
+
+def _is_surface(args: argparse.Namespace) -> bool:
+    return _shape_name(args) in _SURFACES
+
+
+def _check_shape_options(args: argparse.Namespace) -> None:
+    """The options that belong to one shape are not given with another."""
+    name = _shape_name(args)
+    own = {"axis": "torus", "box": "implicit", "genus": "implicit", "components": "implicit"}
+    for option, shape in own.items():
+        if getattr(args, option, None) is not None and name != shape:
+            raise ArgumentError(f"--{option} applies to --{shape} only")
+    if args.angle != 0.0 and name in _SURFACES:
+        raise ArgumentError("--angle applies to --ellipse only")
+    if _is_surface(args) and args.degree != 1:
+        raise ArgumentError(
+            f"--degree must be 1 for surfaces (got {args.degree}): curved tetrahedra are not "
+            "available yet"
+        )
+
+
 def make_boundary(args: argparse.Namespace) -> tuple[Boundary, dict[str, Any]]:
-    """The boundary curve chosen by the shape arguments, and a JSON description of it.
+    """The boundary (curve or surface) chosen by the shape arguments, and a JSON description.
 
     Raises
     ------
@@ -382,9 +731,17 @@ def make_boundary(args: argparse.Namespace) -> tuple[Boundary, dict[str, Any]]:
     """
     from .boundaries import Circle, Ellipse, PeriodicSpline, PolarCurve
 
-    center = np.asarray(args.center, dtype=np.float64)
+    _check_shape_options(args)
+    dim = 3 if _is_surface(args) else 2
+    raw = [0.0] * dim if args.center is None else list(args.center)
+    if len(raw) != dim:
+        what = "X Y Z for a surface" if dim == 3 else "X Y for a curve"
+        raise ArgumentError(f"--center needs {what}, got {len(raw)} number(s)")
+    center = np.asarray(raw, dtype=np.float64)
     if not np.all(np.isfinite(center)):
-        raise ArgumentError(f"--center must be finite, got {list(args.center)}")
+        raise ArgumentError(f"--center must be finite, got {raw}")
+    if dim == 3:
+        return _make_surface(args, center)
     if args.circle is not None:
         _positive("--circle R", args.circle)
         desc = {"type": "circle", "radius": args.circle, "center": center.tolist()}
@@ -426,6 +783,65 @@ def make_boundary(args: argparse.Namespace) -> tuple[Boundary, dict[str, Any]]:
             print(f"{PROG}: warning: {_one_line(str(w.message))}", file=sys.stderr)
     desc = {"type": "spline", "file": str(path.resolve()), "n_points": len(boundary.points)}
     return boundary, desc
+
+
+def _make_surface(args: argparse.Namespace, center: Float) -> tuple[Boundary, dict[str, Any]]:
+    """The surface of ``--sphere``, ``--ellipsoid``, ``--torus`` or ``--implicit``."""
+    from .surfaces import Ellipsoid, ImplicitSurface, Sphere, Torus
+
+    c = center.tolist()
+    if args.sphere is not None:
+        _positive("--sphere R", args.sphere)
+        return Sphere(center, args.sphere), {"type": "sphere", "radius": args.sphere, "center": c}
+    if args.ellipsoid is not None:
+        for name, value in zip("ABC", args.ellipsoid):
+            _positive(f"--ellipsoid {name}", value)
+        desc = {"type": "ellipsoid", "semi_axes": list(args.ellipsoid), "center": c}
+        return Ellipsoid(center, args.ellipsoid), desc
+    if args.torus is not None:
+        major, minor = args.torus
+        _positive("--torus R", major)
+        _positive("--torus r", minor)
+        if not minor < major:
+            raise ArgumentError(
+                f"--torus R r needs r < R (a ring torus), got R = {major}, r = {minor}"
+            )
+        axis = np.array([0.0, 0.0, 1.0] if args.axis is None else args.axis)
+        if not (np.isfinite(axis).all() and (axis @ axis) > 0):
+            raise ArgumentError(f"--axis must be a finite non-zero vector, got {axis.tolist()}")
+        axis = axis / np.sqrt(axis @ axis)
+        desc = {"type": "torus", "major": major, "minor": minor, "axis": axis.tolist(), "center": c}
+        return Torus(center, major, minor, axis=axis), desc
+    for option, low in (("genus", 0), ("components", 1)):
+        value = getattr(args, option)
+        if value is not None and value < low:
+            raise ArgumentError(f"--{option} must be >= {low}, got {value}")
+    imp = implicit_functions(args.implicit, center, args.box)
+    genus = imp.genus if args.genus is None else args.genus
+    components = imp.components if args.components is None else args.components
+    if genus < 0:
+        raise ArgumentError(
+            f"--implicit: the surface's genus counted on the sampling grid is {genus}: give "
+            "--genus and --components"
+        )
+    try:
+        surface = ImplicitSurface(
+            imp.phi, imp.grad, imp.box, genus=genus, num_components=components
+        )
+    except ValueError as e:
+        raise ArgumentError(f"--implicit: {e}") from None
+    desc = {
+        "type": "implicit",
+        "expression": args.implicit,
+        "center": c,
+        "bounding_box": imp.box.tolist(),
+        "box_given": args.box is not None,
+        "genus": genus,
+        "num_components": components,
+        "topology": "given" if args.genus is not None or args.components is not None else "grid",
+        "gradient": imp.gradient,
+    }
+    return surface, desc
 
 
 def _check_numbers(args: argparse.Namespace) -> None:
@@ -505,7 +921,8 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
     timings: dict[str, float] = {}
     _check_numbers(args)
     boundary, shape = make_boundary(args)
-    bbox = np.asarray(boundary.bounding_box(), dtype=np.float64).reshape(2, 2)
+    gdim = 3 if _is_surface(args) else 2
+    bbox = np.asarray(boundary.bounding_box(), dtype=np.float64).reshape(2, gdim)
     extent = float((bbox[1] - bbox[0]).max())
     if not (np.all(np.isfinite(bbox)) and extent > 0):
         raise ArgumentError(f"the shape has an empty or invalid bounding box {bbox.tolist()}")
@@ -514,8 +931,10 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
         raise ArgumentError(
             f"the shape (extent {extent:.3g}) lies {far:.3g} from the origin: float64 "
             "coordinates would keep too few digits to mesh it; move it near the origin "
-            "(e.g. --center 0 0) and shift the mesh afterwards"
+            f"(e.g. --center {' '.join(['0'] * gdim)}) and shift the mesh afterwards"
         )
+    if gdim == 3:
+        return _run_surface(args, comm, boundary, shape, bbox, t_start)
     out = Path(args.out)
     _prepare_out(comm, out)
     plot = not args.no_plot and _have_matplotlib(comm)
@@ -632,6 +1051,7 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
     timings["total"] = comm.allreduce(time.perf_counter() - t_start, op=MPI.MAX)
     files.append("summary.json")
     summary = {
+        "dimension": 2,
         "shape": shape,
         "bounding_box": bbox.tolist(),
         "background_box": box.tolist(),
@@ -667,6 +1087,201 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
             fh.write("\n")
     comm.barrier()
     return summary
+
+
+def _run_surface(
+    args: argparse.Namespace,
+    comm: MPI.Comm,
+    surface: Boundary,
+    shape: dict[str, Any],
+    bbox: Float,
+    t_start: float,
+) -> dict[str, Any]:
+    """:func:`run` for a surface: tetrahedra (collective)."""
+    import dolfinx
+    from dolfinx import io
+
+    from .background_tet import a15_mesh
+    from .conform import IMMERSED, OUTER, conform
+    from .demo_support import versions
+    from .domain import mesh_domain
+    from .io import tags_path, write_mesh
+    from .quality import quality_report
+    from .validation import MeshingError
+
+    timings: dict[str, float] = {}
+    extent = float((bbox[1] - bbox[0]).max())
+    out = Path(args.out)
+    _prepare_out(comm, out)
+    plot = not args.no_plot and _have_matplotlib(comm)
+    h = float(f"{extent / 10.0:.3g}") if args.h is None else float(args.h)
+    margin = (args.rr + 1.0) * h if args.margin is None else float(args.margin)
+    box = np.array([bbox[0] - margin, bbox[1] + margin])
+    if args.uniform:
+        n_estimate = 11.5 * float(np.prod(box[1] - box[0])) / h**3  # A15: 11.5 cells per h^3
+        if n_estimate > 2e7:
+            raise ArgumentError(
+                f"--h {h:.4g} would give ~{n_estimate:.3g} background cells; use a larger h"
+            )
+
+    certificate = None
+    t = time.perf_counter()
+    try:
+        if args.uniform:
+            background = a15_mesh(comm, box.tolist(), h)
+            timings["background"] = time.perf_counter() - t
+            t = time.perf_counter()
+            cm = conform(
+                background,
+                surface,
+                alpha=args.alpha,
+                eta=args.eta,
+                relaxation_factor=args.rr,
+                min_angle=args.min_angle,
+            )
+            timings["conform"] = time.perf_counter() - t
+        else:
+            md = mesh_domain(
+                comm,
+                surface,
+                h,
+                degree=1,
+                box=box if args.margin is not None else None,
+                eta=args.eta,
+                relaxation_factor=args.rr,
+                min_angle=args.min_angle,
+            )
+            cm, background, certificate = md.conforming, md.background, md.certificate
+            for stage, seconds in md.timings.items():
+                if stage not in ("total", "curved"):
+                    timings[stage] = seconds
+    except MeshingError as e:
+        if shape["type"] == "implicit" and "Euler characteristic" in str(e):
+            how = "given" if shape["topology"] == "given" else "counted on the sampling grid"
+            raise MeshingError(
+                f"{e}; for --implicit check the surface's topology ({shape['num_components']} "
+                f"component(s), genus {shape['genus']}, {how}): give --genus and --components",
+                e.points,
+                refinable=False,
+            ) from None
+        raise
+    except ValueError as e:  # parameter checks (collective)
+        raise ArgumentError(str(e)) from None
+    msh, tags = cm.mesh, cm.facet_tags
+    if msh.topology.index_map(3).size_global == 0:  # same verdict on every rank
+        raise MeshingError(
+            f"no background vertex lies inside the domain: h = {h:.4g} is too coarse for a "
+            f"shape of extent {extent:.4g}; use a smaller --h"
+        )
+    for stage, seconds in cm.timings.items():
+        timings[f"conform.{stage}"] = seconds
+    x = background.geometry.x
+    lo = np.min(x, axis=0, initial=np.inf)
+    hi = np.max(x, axis=0, initial=-np.inf)
+    comm.Allreduce(MPI.IN_PLACE, lo, op=MPI.MIN)
+    comm.Allreduce(MPI.IN_PLACE, hi, op=MPI.MAX)
+    box = np.array([lo, hi])  # the background's own extent
+    h_used = float(h if certificate is None else certificate.h_min)
+
+    t = time.perf_counter()
+    quality = quality_report(cm)
+    timings["quality"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    write_mesh(out / "mesh.vtkhdf", msh, tags)
+    files = ["mesh.vtkhdf", tags_path(out / "mesh.vtkhdf").name]
+    with io.VTXWriter(comm, out / "mesh.bp", msh, engine="BPFile") as vtx:
+        vtx.write(0.0)
+    files.append("mesh.bp")
+    with io.XDMFFile(comm, out / "mesh.xdmf", "w") as xdmf:
+        xdmf.write_mesh(msh)
+        tags.name = "facet_tags"
+        xdmf.write_meshtags(tags, msh.geometry)
+    files += ["mesh.xdmf", "mesh.h5"]
+    timings["write"] = time.perf_counter() - t
+
+    if plot:
+        t = time.perf_counter()
+        _plot_surface_mesh(
+            comm,
+            cm,
+            out / "mesh.png",
+            f"universal mesh: {shape['type']}, h = {h_used:.3g}",
+            float(quality["theta_min_deg"]),
+        )
+        files.append("mesh.png")
+        timings["plot"] = time.perf_counter() - t
+
+    nfo = msh.topology.index_map(2).size_local
+    owned = tags.indices < nfo
+    facets = {
+        "immersed": comm.allreduce(int((tags.values[owned] == IMMERSED).sum())),
+        "outer": comm.allreduce(int((tags.values[owned] == OUTER).sum())),
+    }
+    timings = {k: comm.allreduce(v, op=MPI.MAX) for k, v in timings.items()}
+    timings["total"] = comm.allreduce(time.perf_counter() - t_start, op=MPI.MAX)
+    files.append("summary.json")
+    summary = {
+        "dimension": 3,
+        "shape": shape,
+        "bounding_box": bbox.tolist(),
+        "background_box": box.tolist(),
+        "h": h,
+        "h_used": h_used,
+        "margin": float(bbox[0, 0] - box[0, 0]),
+        "rr": args.rr,
+        "R_r": args.rr * h_used,
+        "alpha": cm.alpha,
+        "eta": cm.eta,
+        "degree": 1,
+        "map": None,
+        "n_background_cells": background.topology.index_map(3).size_global,
+        "n_cells": int(quality["n_cells"]),
+        "n_vertices": msh.topology.index_map(0).size_global,
+        "n_geometry_nodes": msh.geometry.index_map().size_global,
+        "n_relocated": cm.num_relocated,
+        "facets": {"tags": {"immersed": IMMERSED, "outer": OUTER}, "counts": facets},
+        "quality": quality,
+        "background": "A15 uniform (--uniform)" if args.uniform else "sized (mesh_domain)",
+        "certificate": certificate.as_dict() if certificate is not None else None,
+        "mpi_size": comm.size,
+        "dolfinx_version": dolfinx.__version__,
+        "versions": versions(),
+        "files": files,
+        "timings_s": timings,
+    }
+    summary = _json_safe(summary)
+    summary["certificate_text"] = str(certificate) if certificate is not None else None
+    if comm.rank == 0:
+        with open(out / "summary.json", "w") as fh:
+            json.dump(summary, fh, indent=2, allow_nan=False)
+            fh.write("\n")
+    comm.barrier()
+    return summary
+
+
+def _plot_surface_mesh(comm: MPI.Comm, cm: Any, path: Path, title: str, low: float) -> None:
+    """Clipped view and surface of a tetrahedral conforming mesh, coloured by quality (the
+    smallest dihedral angle of each cell, from ``low`` to the regular tetrahedron's)."""
+    from .plotting import plot_tetrahedra, save
+
+    fig, axes = None, [None, None]
+    if comm.rank == 0:
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=(13.0, 6.0), layout="constrained")
+        axes = [fig.add_subplot(1, 2, i + 1, projection="3d") for i in range(2)]
+        fig.suptitle(title)
+    hi = float(np.degrees(np.arccos(1.0 / 3.0)))  # 70.53: the regular tetrahedron's
+    lo = min(low, hi - 1.0)
+    plot_tetrahedra(
+        cm, axes[0], view="clipped", vmin=lo, vmax=hi, colorbar=False,
+        title="the cells behind the plane y = y_c",
+    )  # fmt: skip
+    plot_tetrahedra(
+        cm, axes[1], view="surface", vmin=lo, vmax=hi, title="Gamma_h (the immersed faces)"
+    )
+    save(fig, path)
 
 
 def _prepare_out(comm: MPI.Comm, out: Path) -> None:
@@ -745,11 +1360,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         return fail(str(e), 1)
     if comm.rank == 0 and not args.quiet:
         q = summary["quality"]
+        solid = summary["dimension"] == 3
         print(
-            f"{summary['n_cells']} cells ({q['n_positively_cut']} positively cut, "
-            f"{q['percent_unaltered']:.1f}% unaltered), angles in "
+            f"{summary['n_cells']} cells ({'tetrahedra; ' if solid else ''}"
+            f"{q['n_positively_cut']} positively cut, "
+            f"{q['percent_unaltered']:.1f}% unaltered), {'dihedral ' if solid else ''}angles in "
             f"[{q['theta_min_deg']:.1f}, {q['theta_max_deg']:.1f}] degrees, h = "
-            f"{summary['h']:.4g}; wrote {', '.join(summary['files'])} to {args.out}",
+            f"{summary.get('h_used', summary['h']):.4g}; wrote {', '.join(summary['files'])} "
+            f"to {args.out}",
             flush=True,
         )
         if summary["certificate"] is not None:

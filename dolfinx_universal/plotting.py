@@ -3,9 +3,10 @@
 Every figure function is collective (call it on every rank): the cells are gathered to rank
 0, which alone draws. Curved (degree > 1) cells are drawn curved: their edges are polylines of
 the mapped reference edges and fields are drawn on a lattice of each cell mapped by the
-cell's coordinate map, so that the colours reach the curved boundary. Everything is built
-from arrays (one collection per layer, no Python loop over cells). Matplotlib is optional
-(``pip install dolfinx_universal[plot]``).
+cell's coordinate map, so that the colours reach the curved boundary. Tetrahedron meshes
+are drawn in 3D by :func:`plot_tetrahedra` (a clipped view or the surface, coloured by the
+cells' smallest dihedral angles). Everything is built from arrays (one collection per layer,
+no Python loop over cells). Matplotlib is optional (``pip install dolfinx_universal[plot]``).
 """
 
 from __future__ import annotations
@@ -18,6 +19,8 @@ from mpi4py import MPI
 
 import numpy as np
 import numpy.typing as npt
+
+from . import _tetrahedron
 
 if TYPE_CHECKING:
     from dolfinx import fem
@@ -37,12 +40,15 @@ __all__ = [
     "cell_edges",
     "cell_kinds",
     "cell_outlines",
+    "clipped_faces",
     "curved_cells",
     "field_triangulation",
     "gather_cells",
+    "gather_tetrahedra",
     "plot_conforming",
     "plot_function",
     "plot_mesh",
+    "plot_tetrahedra",
     "reference_lattice",
     "save",
     "subdivide_cells",
@@ -1242,3 +1248,260 @@ def save(fig: Figure | None, path: str | Path, dpi: int = 150, **kwargs: Any) ->
     fig.savefig(path, dpi=dpi, **kwargs)
     if "matplotlib.pyplot" in sys.modules:  # release figures created through pyplot
         sys.modules["matplotlib.pyplot"].close(fig)
+
+
+# --------------------------------------------------------------------------------------------
+# Tetrahedra
+# --------------------------------------------------------------------------------------------
+
+# Outward faces of a positively oriented tetrahedron: face k is opposite vertex k (basix's
+# numbering, which DOLFINx's cell-to-facet connectivity follows).
+_TET_FACES = _tetrahedron.FACETS
+
+
+def gather_tetrahedra(
+    msh: dmesh.Mesh,
+    facet_tags: dmesh.MeshTags | None = None,
+    tag: int | None = 1,
+    root: int = 0,
+) -> dict[str, npt.NDArray] | None:
+    """The owned tetrahedra of a mesh with their quality and tagged faces, on one rank.
+
+    Collective. Straight cells through the vertices (the first four geometry nodes).
+
+    Parameters
+    ----------
+    msh
+        A tetrahedron mesh, possibly distributed.
+    facet_tags
+        Face tags; ``None``: the exterior faces count as tagged.
+    tag
+        The tag value of the faces to mark (``None``: every tagged face).
+    root
+        Rank that receives the data.
+
+    Returns
+    -------
+    On ``root`` a dict of arrays over the ``n`` global cells, ``None`` elsewhere:
+    ``corners`` ``(n, 4, 3)``, ``vertices`` ``(n, 4)`` (global vertex indices),
+    ``min_dihedral_deg`` ``(n,)`` and ``tagged`` ``(n, 4)`` (face ``k`` of the cell,
+    opposite its vertex ``k``, carries the tag).
+    """
+    topo = msh.topology
+    if topo.cell_type.name != "tetrahedron":
+        raise ValueError(f"gather_tetrahedra needs a tetrahedron mesh, got {topo.cell_type.name}")
+    nco = topo.index_map(3).size_local
+    topo.create_connectivity(3, 0)
+    topo.create_connectivity(2, 3)
+    topo.create_connectivity(3, 2)
+    c2v = topo.connectivity(3, 0).array.reshape(-1, 4)[:nco]
+    c2f = topo.connectivity(3, 2).array.reshape(-1, 4)[:nco]
+    corners = msh.geometry.x[msh.geometry.dofmaps[0][:nco, :4]]
+    x = corners.reshape(-1, 3)
+    cells = np.arange(4 * nco, dtype=np.int64).reshape(-1, 4)
+    with np.errstate(invalid="ignore"):
+        angles = _tetrahedron.dihedral_angles(x, cells) if nco else np.zeros((0, 6))
+        quality = np.degrees(np.nanmin(angles, axis=1)) if nco else np.zeros(0)
+    imf = topo.index_map(2)
+    marked = np.zeros(imf.size_local + imf.num_ghosts, dtype=bool)
+    if facet_tags is None:
+        marked[_exterior_facets(msh)] = True
+    else:
+        sel = np.ones(len(facet_tags.values), bool) if tag is None else facet_tags.values == tag
+        marked[facet_tags.indices[sel]] = True
+    local = {
+        "corners": np.ascontiguousarray(corners),
+        "vertices": topo.index_map(0).local_to_global(c2v.ravel()).reshape(-1, 4),
+        "min_dihedral_deg": quality,
+        "tagged": marked[c2f],
+    }
+    parts = msh.comm.gather(local, root=root)
+    if msh.comm.rank != root:
+        return None
+    return {k: np.concatenate([p[k] for p in parts]) for k in local}
+
+
+def _exterior_facets(msh: dmesh.Mesh) -> npt.NDArray[np.int32]:
+    """Process-local exterior facets of a mesh (``dolfinx.mesh.exterior_facet_indices``)."""
+    from dolfinx import mesh as dmesh
+
+    tdim = msh.topology.dim
+    msh.topology.create_connectivity(tdim - 1, tdim)
+    return dmesh.exterior_facet_indices(msh.topology)
+
+
+def _outward_faces(corners: npt.NDArray) -> npt.NDArray:
+    """Faces ``(n, 4, 3, 3)`` of tetrahedra ``(n, 4, 3)``, oriented out of each cell."""
+    faces = corners[:, _TET_FACES]
+    d = corners[:, 1:] - corners[:, :1]
+    negative = np.einsum("ij,ij->i", d[:, 0], np.cross(d[:, 1], d[:, 2])) < 0
+    faces[negative] = faces[negative][:, :, [0, 2, 1]]
+    return faces
+
+
+def clipped_faces(
+    data: dict[str, npt.NDArray],
+    origin: npt.ArrayLike,
+    normal: npt.ArrayLike,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.int64]]:
+    """The visible faces of the tetrahedra behind a clipping plane.
+
+    The cells whose centroid ``c`` has ``(c - origin) . normal <= 0`` are kept; their faces
+    that no other kept cell shares (the cut through the mesh, and the mesh's own boundary
+    on that side) are returned, oriented out of their cells.
+
+    Parameters
+    ----------
+    data
+        As returned by :func:`gather_tetrahedra` (on its root rank).
+    origin, normal
+        A point of the plane ``(3,)`` and its normal ``(3,)``, pointing to the removed half.
+
+    Returns
+    -------
+    faces
+        ``(m, 3, 3)`` corner coordinates.
+    cells
+        ``(m,)`` index of each face's cell in ``data``.
+    """
+    corners = data["corners"]
+    centroid = corners.mean(axis=1)
+    keep = np.flatnonzero((centroid - np.asarray(origin)) @ np.asarray(normal, float) <= 0)
+    ids = np.sort(data["vertices"][keep][:, _TET_FACES].reshape(-1, 3), axis=1)
+    _, inverse, counts = np.unique(ids, axis=0, return_inverse=True, return_counts=True)
+    single = counts[inverse.reshape(-1)] == 1
+    faces = _outward_faces(corners[keep]).reshape(-1, 3, 3)[single]
+    cells = np.repeat(keep, 4)[single]
+    return faces, cells
+
+
+def _view_vector(elev: float, azim: float) -> npt.NDArray[np.float64]:
+    """Unit vector from the scene towards the camera of mplot3d's ``view_init``."""
+    e, a = np.radians(elev), np.radians(azim)
+    return np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
+
+
+def plot_tetrahedra(
+    mesh: ConformingMesh | dmesh.Mesh,
+    ax: Any = None,
+    *,
+    view: str = "clipped",
+    facet_tags: dmesh.MeshTags | None = None,
+    tag: int | None = 1,
+    origin: npt.ArrayLike | None = None,
+    normal: npt.ArrayLike = (0.0, -1.0, 0.0),
+    elev: float = 22.0,
+    azim: float = -58.0,
+    cmap: Any = "viridis",
+    vmin: float | None = None,
+    vmax: float | None = None,
+    colorbar: bool = True,
+    shade: bool = True,
+    edgecolor: Any = "k",
+    linewidth: float = 0.15,
+    title: str | None = None,
+    figsize: tuple[float, float] = (7.0, 6.0),
+) -> tuple[Figure | None, Any]:
+    """3D figure of a tetrahedron mesh: a clipped view, or its surface, coloured by quality.
+
+    Every drawn face is coloured by the smallest dihedral angle of its tetrahedron (degrees).
+    ``view="clipped"``: the tetrahedra with their centroid on the kept side of a plane
+    (:func:`clipped_faces`: the cut through the mesh and the boundary behind it).
+    ``view="surface"``: the faces tagged ``tag`` (for a conforming mesh, Gamma_h: its
+    IMMERSED faces), or all exterior faces when the mesh has no tags. Drawn with mplot3d's
+    ``Poly3DCollection`` (painter's algorithm: faces sorted by depth; colours shaded by a
+    light from the camera's side unless ``shade=False``), with equal axis scales.
+
+    Collective: call on every rank. Drawing happens on rank 0 only.
+
+    Parameters
+    ----------
+    mesh
+        A :class:`~dolfinx_universal.conform.ConformingMesh` (its mesh and facet tags) or a
+        tetrahedron mesh (degree 1: cells drawn straight through their vertices).
+    ax
+        3D axes (``projection="3d"``) on rank 0, or ``None`` for a new figure there.
+    view
+        ``"clipped"`` or ``"surface"``.
+    facet_tags
+        Face tags of a plain mesh (a conforming mesh brings its own).
+    tag
+        The value of the faces drawn by ``view="surface"`` (``None``: all tagged faces).
+    origin, normal
+        Clipping plane: a point (default: the centre of the mesh's bounding box) and the
+        normal pointing to the removed half (default ``-y``: the half nearest the default
+        camera goes).
+    elev, azim
+        Camera angles (degrees), as in ``Axes3D.view_init``.
+    cmap, vmin, vmax
+        Colour map and range of the min dihedral angles (default: their range).
+    colorbar
+        Add a colour bar (new figures and given axes alike).
+    shade
+        Shade the face colours by their orientation to the light.
+    edgecolor, linewidth
+        Face outlines.
+    title
+        Axes title.
+    figsize
+        Size of a new figure.
+
+    Returns
+    -------
+    ``(figure, axes)`` on rank 0, ``(None, None)`` elsewhere.
+    """
+    if view not in ("clipped", "surface"):
+        raise ValueError(f"view must be 'clipped' or 'surface', got {view!r}")
+    if hasattr(mesh, "facet_tags") and facet_tags is None:
+        facet_tags = mesh.facet_tags
+    msh = getattr(mesh, "mesh", mesh)
+    data = gather_tetrahedra(msh, facet_tags, tag)
+    if data is None:
+        return None, None
+    mpl = _mpl()
+    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
+
+    quality = data["min_dihedral_deg"]
+    if view == "clipped":
+        x = data["corners"].reshape(-1, 3)
+        centre = 0.5 * (x.min(axis=0) + x.max(axis=0)) if len(x) else np.zeros(3)
+        o = centre if origin is None else np.asarray(origin, dtype=np.float64)
+        faces, cells = clipped_faces(data, o, normal)
+    else:
+        faces = _outward_faces(data["corners"])[data["tagged"]]
+        cells = np.nonzero(data["tagged"])[0]
+    values = quality[cells]
+    if ax is None:
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=figsize, layout="constrained")
+        ax = fig.add_subplot(projection="3d")
+    else:
+        fig = _figure(ax)
+    lo = vmin if vmin is not None else (float(values.min()) if len(values) else 0.0)
+    hi = vmax if vmax is not None else (float(values.max()) if len(values) else 90.0)
+    norm = mpl.colors.Normalize(vmin=lo, vmax=max(hi, lo + 1e-9))
+    colours = mpl.colormaps[cmap](norm(values)) if isinstance(cmap, str) else cmap(norm(values))
+    if shade and len(faces):
+        n = np.cross(faces[:, 1] - faces[:, 0], faces[:, 2] - faces[:, 0])
+        n /= np.maximum(np.linalg.norm(n, axis=1), 1e-300)[:, None]
+        light = _view_vector(elev + 25.0, azim - 30.0)
+        intensity = 0.55 + 0.45 * np.abs(n @ light)
+        colours[:, :3] *= intensity[:, None]
+    collection = Poly3DCollection(
+        faces, facecolors=colours, edgecolors=edgecolor, linewidths=linewidth
+    )
+    ax.add_collection3d(collection)
+    pts = data["corners"].reshape(-1, 3)
+    if len(pts):
+        lo3, hi3 = pts.min(axis=0), pts.max(axis=0)
+        ax.set_xlim(lo3[0], hi3[0]), ax.set_ylim(lo3[1], hi3[1]), ax.set_zlim(lo3[2], hi3[2])
+        ax.set_box_aspect(np.maximum(hi3 - lo3, 1e-12))
+    ax.view_init(elev=elev, azim=azim)
+    ax.set_xlabel("x"), ax.set_ylabel("y"), ax.set_zlabel("z")
+    if colorbar:
+        mappable = mpl.cm.ScalarMappable(norm=norm, cmap=cmap)
+        fig.colorbar(mappable, ax=ax, label="min dihedral angle of the cell (deg)", shrink=0.7)
+    if title is not None:
+        ax.set_title(title)
+    return fig, ax

@@ -1,4 +1,5 @@
-"""Command line: shapes, output files, summary, argument and meshing errors, MPI."""
+"""Command line: shapes (curves and surfaces), output files, summary, argument and meshing
+errors, MPI."""
 
 from __future__ import annotations
 
@@ -12,7 +13,15 @@ import pytest
 from conftest import needs_ranks
 from dolfinx import io
 
-from dolfinx_universal.cli import ArgumentError, build_parser, main, polar_functions, run
+from dolfinx_universal.cli import (
+    ArgumentError,
+    build_parser,
+    grid_topology,
+    implicit_functions,
+    main,
+    polar_functions,
+    run,
+)
 
 comm = MPI.COMM_WORLD
 ROOT = Path(__file__).resolve().parents[1]
@@ -315,3 +324,201 @@ def test_without_matplotlib(tmp_path, capsys, monkeypatch):
     assert main(["--circle", "1", "--out", str(tmp_path)]) == 0
     assert "matplotlib is not installed" in capsys.readouterr().err
     assert (tmp_path / "summary.json").exists() and not (tmp_path / "mesh.png").exists()
+
+
+# ------------------------------------------------------------------------------- surfaces
+TORUS_EXPR = "(sqrt(x**2 + y**2) - 1)**2 + z**2 - 0.3**2"
+
+
+def check_surface_summary(s: dict, shape: str) -> None:
+    q = s["quality"]
+    assert s["dimension"] == 3 and s["degree"] == 1 and s["shape"]["type"] == shape
+    assert s["n_cells"] == q["n_cells"] > 0 and q["n_inverted"] == 0
+    assert 0 < q["n_positively_cut"] < s["n_cells"]
+    assert q["min_volume_ratio"] > 0 and 0 < q["mean_ratio_min"] <= 1
+    # the issue's targets for the relaxed tetrahedra
+    assert 30.0 <= q["theta_min_deg"] and q["theta_max_deg"] <= 125.0
+    assert sum(q["dihedral_histogram"]) == 6 * q["n_cells"]
+    assert s["facets"]["counts"]["immersed"] >= 4 and s["facets"]["counts"]["outer"] == 0
+    assert s["n_background_cells"] > s["n_cells"]
+    assert s["timings_s"]["total"] > 0 and s["timings_s"]["conform.relax"] > 0
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize(
+    "shape, args",
+    [
+        ("sphere", ["--sphere", "1", "--h", "0.5"]),
+        ("ellipsoid", ["--ellipsoid", "1", "0.9", "0.8", "--center", "0.1", "0", "-0.05"]),
+        ("torus", ["--torus", "1", "0.4", "--uniform", "--h", "0.25", "--axis", "1", "0", "1"]),
+        # R - r > R_r: the lattice vertices on the axis (a circle of closest points each)
+        # stay out of the band
+        ("implicit", ["--implicit", TORUS_EXPR, "--uniform", "--h", "0.2"]),
+    ],
+)
+def test_surfaces(mpi_tmp_path, capsys, shape, args):
+    """Each surface option meshes, writes its files and reads back with its face tags."""
+    from dolfinx_universal.io import read_mesh
+
+    out = mpi_tmp_path / shape
+    plot = shape == "sphere"
+    assert main([*args, "--out", str(out), *([] if plot else ["--no-plot"])]) == 0
+    captured = capsys.readouterr()
+    assert captured.err == ""
+    if comm.rank == 0:
+        assert "tetrahedra" in captured.out and "dihedral angles in" in captured.out
+    else:
+        assert captured.out == ""
+    s = read_summary(out)
+    check_surface_summary(s, shape)
+    names = ["mesh.vtkhdf", "mesh.tags.npz", "mesh.xdmf", "mesh.h5", "summary.json"]
+    assert s["files"] == names[:2] + ["mesh.bp"] + names[2:4] + (["mesh.png"] if plot else []) + [
+        "summary.json"
+    ]
+    for name in names + (["mesh.png"] if plot else []):
+        assert (out / name).is_file() and (out / name).stat().st_size > 0
+    if plot and comm.rank == 0:
+        assert (out / "mesh.png").stat().st_size > 20_000
+    uniform = "--uniform" in args
+    assert s["background"] == ("A15 uniform (--uniform)" if uniform else "sized (mesh_domain)")
+    assert (s["certificate"] is None) == uniform
+    if not uniform:
+        assert s["certificate"]["num_cells"] == s["n_cells"]
+        assert s["h_used"] <= s["h"] and s["certificate"]["max_conditioning_angle_deg"] < 90
+    if shape == "implicit":
+        assert s["shape"]["genus"] == 1 and s["shape"]["num_components"] == 1
+        assert s["shape"]["topology"] == "grid" and s["shape"]["gradient"] == "complex-step"
+    if shape == "torus":
+        assert s["shape"]["axis"] == pytest.approx([2**-0.5, 0, 2**-0.5])
+    msh, tags = read_mesh(comm, out / "mesh.vtkhdf")
+    assert msh.topology.index_map(3).size_global == s["n_cells"]
+    nf = msh.topology.index_map(2).size_local
+    assert comm.allreduce(int((tags.find(1) < nf).sum())) == s["facets"]["counts"]["immersed"]
+
+
+def test_surface_help(capsys):
+    assert main(["--help"]) == 0
+    text = capsys.readouterr().out
+    if comm.rank == 0:
+        for option in (
+            "--sphere",
+            "--ellipsoid",
+            "--torus",
+            "--implicit",
+            "--axis",
+            "--box",
+            "--genus",
+            "--components",
+        ):
+            assert option in text
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize(
+    "args, fragment",
+    [
+        (["--sphere", "0"], "--sphere R must be a positive"),
+        (["--sphere", "1", "--torus", "1", "0.5"], "not allowed"),
+        (["--ellipsoid", "1", "-1", "1"], "--ellipsoid B must be a positive"),
+        (["--ellipsoid", "1", "1"], "expected 3 arguments"),
+        (["--torus", "1", "2"], "needs r < R"),
+        (["--torus", "1", "0.3", "--axis", "0", "0", "0"], "--axis must be a finite non-zero"),
+        (["--sphere", "1", "--degree", "2"], "--degree must be 1 for surfaces"),
+        (["--sphere", "1", "--center", "0", "0"], "--center needs X Y Z for a surface"),
+        (["--circle", "1", "--center", "0", "0", "0"], "--center needs X Y for a curve"),
+        (["--sphere", "1", "--genus", "1"], "--genus applies to --implicit only"),
+        (["--sphere", "1", "--box", "0", "0", "0", "1", "1", "1"], "--box applies to --implicit"),
+        (["--circle", "1", "--axis", "0", "0", "1"], "--axis applies to --torus only"),
+        (["--sphere", "1", "--angle", "30"], "--angle applies to --ellipse only"),
+        (["--sphere", "1", "--h", "-0.1"], "--h must be a positive"),
+        (["--sphere", "1", "--uniform", "--h", "0.001"], "background cells; use a larger h"),
+        (["--sphere", "1", "--center", "1e17", "0", "0"], "move it near the origin"),
+        (["--implicit", "x**2 + y**2 + z**2 + 1"], "found no solid (phi < 0)"),
+        (["--implicit", "x**2 + nope"], "unknown name 'nope' (use x, y, z,"),
+        (["--implicit", "__import__('os')"], "unknown name '__import__'"),
+        (["--implicit", "x**2 + (y"], "invalid implicit expression"),
+        (["--implicit", "1/(x - x)"], "is not finite"),
+        (["--implicit", "x**2+y**2+z**2-1", "--box", "0", "0", "0", "1", "1", "1"], "leaves --box"),
+        (["--implicit", "x**2+y**2+z**2-1", "--box", "0", "0", "0", "-1", "1", "1"], "X0 < X1"),
+        (["--implicit", "x**2+y**2+z**2-1", "--genus", "-1"], "--genus must be >= 0"),
+        (["--implicit", "x**2+y**2+z**2-1", "--components", "0"], "--components must be >= 1"),
+    ],
+)
+def test_bad_surface_arguments(mpi_tmp_path, capsys, args, fragment):
+    """Every bad input: exit status 2 on every rank, one line on rank 0, no output files."""
+    assert main([*args, "--out", str(mpi_tmp_path / "bad"), "--no-plot"]) == 2
+    err = capsys.readouterr().err
+    if comm.rank == 0:
+        assert err.startswith("dolfinx-universal: error: ") and err.count("\n") == 1
+        assert fragment in err, err
+    else:
+        assert err == ""
+    assert not (mpi_tmp_path / "bad" / "summary.json").exists()
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize(
+    "args, fragment",
+    [
+        (["--sphere", "0.05", "--uniform", "--h", "0.5"], "no background vertex lies inside"),
+        (  # a torus declared genus 0: Gamma_h's Euler characteristic says otherwise
+            ["--implicit", TORUS_EXPR, "--genus", "0", "--uniform", "--h", "0.3"],
+            "give --genus and --components",
+        ),
+    ],
+)
+def test_surface_meshing_failure(mpi_tmp_path, capsys, args, fragment):
+    assert main([*args, "--out", str(mpi_tmp_path / "fail"), "--no-plot"]) == 1
+    err = capsys.readouterr().err
+    if comm.rank == 0:
+        assert err.startswith("dolfinx-universal: error: ") and err.count("\n") == 1
+        assert fragment in err
+    else:
+        assert err == ""
+    assert not (mpi_tmp_path / "fail" / "summary.json").exists()
+
+
+def test_implicit_functions():
+    """Gradient by complex step (or differences), a box around the surface, its topology."""
+    p = np.random.default_rng(1).uniform(-1, 1, (50, 3))
+    imp = implicit_functions("x**2 + 2*y**2 + 3*z**2 - 1", (0.1, 0.0, -0.2))
+    assert imp.gradient == "complex-step"
+    q = p - [0.1, 0.0, -0.2]
+    np.testing.assert_allclose(imp.phi(p), (q**2 * [1, 2, 3]).sum(axis=1) - 1, rtol=1e-14)
+    np.testing.assert_allclose(imp.grad(p), 2 * q * [1, 2, 3], rtol=1e-14, atol=1e-15)
+    semi = np.array([1, 2**-0.5, 3**-0.5])
+    lo, hi = imp.box
+    assert np.all(lo < [0.1, 0, -0.2] - semi) and np.all(hi > [0.1, 0, -0.2] + semi)
+    spacing = 2.0 * semi.max() / (64 - 1)  # the second grid's
+    assert np.all(hi - ([0.1, 0, -0.2] + semi) < 4 * spacing)
+    assert (imp.components, imp.genus) == (1, 0)
+    # not complex-safe (np.abs): fourth-order differences
+    imp = implicit_functions("np.abs(x)**3 + y**2 + z**2 - 1", (0, 0, 0))
+    assert imp.gradient == "finite-difference"
+    g = np.column_stack([3 * p[:, 0] * np.abs(p[:, 0]), 2 * p[:, 1], 2 * p[:, 2]])
+    np.testing.assert_allclose(imp.grad(p), g, atol=1e-9)
+    # a given box; a torus counted with genus 1
+    imp = implicit_functions(TORUS_EXPR, (0, 0, 0), [[-2, -2, -1], [2, 2, 1]])
+    assert imp.box.tolist() == [[-2, -2, -1], [2, 2, 1]] and (imp.components, imp.genus) == (1, 1)
+    # a large solid far from the centre is found on the growing cubes
+    imp = implicit_functions("(x - 30)**2 + y**2 + z**2 - 100", (0, 0, 0))
+    assert imp.box[0, 0] < 20 < 40 < imp.box[1, 0]
+
+
+@pytest.mark.parametrize(
+    "phi, expected",
+    [
+        (lambda p: (p**2).sum(axis=1) - 1, (1, 0)),  # ball
+        (lambda p: (np.hypot(p[:, 0], p[:, 1]) - 1) ** 2 + p[:, 2] ** 2 - 0.1, (1, 1)),  # torus
+        (lambda p: np.maximum((p**2).sum(axis=1) - 1, 0.3 - (p**2).sum(axis=1)), (2, 0)),  # shell
+        (  # two tori side by side
+            lambda p: ((p[:, 0] ** 2 - 1) ** 2 + p[:, 1] ** 2 - 0.3) ** 2 + p[:, 2] ** 2 - 0.02,
+            (2, 2),
+        ),
+    ],
+)
+def test_grid_topology(phi, expected):
+    n = 64
+    axes = [np.linspace(-1.7, 1.7, n)] * 3
+    p = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    assert grid_topology((phi(p) < 0).reshape(n, n, n)) == expected

@@ -411,3 +411,65 @@ def test_missing_matplotlib_message(monkeypatch):
     monkeypatch.setitem(sys.modules, "matplotlib", None)
     with pytest.raises(ImportError, match=r"pip install dolfinx_universal\[plot\]"):
         plotting._mpl()
+
+
+# ------------------------------------------------------------------------------- tetrahedra
+def _enclosed(faces: np.ndarray) -> float:
+    """Volume enclosed by outward triangles ``(m, 3, 3)`` (divergence theorem)."""
+    return float((faces[:, 0] * np.cross(faces[:, 1], faces[:, 2])).sum() / 6.0)
+
+
+@pytest.mark.mpi
+def test_gather_and_clip_tetrahedra():
+    """Every owned cell once, exterior faces marked, and the clipped set's faces closed."""
+    from dolfinx_universal.plotting import clipped_faces, gather_tetrahedra
+
+    msh = dmesh.create_box(
+        comm, [[0.0, 0.0, 0.0], [2.0, 1.0, 1.0]], (4, 2, 2), dmesh.CellType.tetrahedron
+    )
+    data = gather_tetrahedra(msh)  # no tags: the exterior faces
+    if comm.rank != 0:
+        assert data is None
+        return
+    n = 4 * 2 * 2 * 6
+    assert data["corners"].shape == (n, 4, 3) and data["vertices"].shape == (n, 4)
+    assert data["tagged"].sum() == 2 * (4 * 2 + 4 * 2 + 2 * 2) * 2
+    assert np.all((data["min_dihedral_deg"] > 0) & (data["min_dihedral_deg"] <= 70.6))
+    assert len(np.unique(data["vertices"])) == 5 * 3 * 3
+    faces, cells = clipped_faces(data, (1.0, 0.5, 0.5), (1.0, 0.0, 0.0))
+    centroid_x = data["corners"].mean(axis=1)[:, 0]
+    assert set(cells) <= set(np.flatnonzero(centroid_x <= 1.0))
+    # outward and closed: they enclose the kept half, x <= 1 (cells of whole cubes)
+    assert _enclosed(faces) == pytest.approx(1.0, rel=1e-12)
+    assert len(faces) == 6 * 4 * 2  # the unit cube's 6 sides of 2 x 2 squares, 2 triangles each
+
+
+def test_plot_tetrahedra(tmp_path):
+    from matplotlib.figure import Figure
+
+    from dolfinx_universal.plotting import plot_tetrahedra
+
+    cm = du.conform(
+        du.a15_mesh(comm, [[-1.6] * 3, [1.6] * 3], 0.4), du.Sphere((0.01, 0.02, 0.03), 1.0)
+    )
+    fig, ax = plot_tetrahedra(cm, title="clipped")  # a new figure, Gamma_h's tags
+    if comm.rank == 0:
+        assert isinstance(fig, Figure) and ax.name == "3d" and ax.get_title() == "clipped"
+        assert len(ax.collections) == 1 and len(fig.axes) == 2  # the faces, a colour bar
+        save(fig, tmp_path / "clipped.png")
+        assert_png(tmp_path / "clipped.png")
+    else:
+        assert fig is None and ax is None
+    target = Figure() if comm.rank == 0 else None
+    ax3 = target.add_subplot(projection="3d") if target is not None else None
+    fig, ax = plot_tetrahedra(cm, ax3, view="surface", colorbar=False, vmin=30, vmax=70)
+    if comm.rank == 0:
+        assert fig is target and ax is ax3
+        # the surface view draws Gamma_h: the IMMERSED faces
+        nf = cm.mesh.topology.index_map(2).size_local
+        drawn = len(ax.collections[0].get_facecolors())
+        assert drawn == int((cm.facet_tags.find(du.IMMERSED) < nf).sum()) or comm.size > 1
+    with pytest.raises(ValueError, match="'clipped' or 'surface'"):
+        plot_tetrahedra(cm, view="slice")
+    with pytest.raises(ValueError, match="tetrahedron mesh"):
+        plot_tetrahedra(dmesh.create_unit_square(comm, 2, 2))
