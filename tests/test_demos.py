@@ -105,3 +105,68 @@ def test_poisson_demo(tmp_path):
     for a, b in zip(rows, parallel["rows"]):
         assert a["n_cells"] == b["n_cells"]
         assert np.isclose(a["L2"], b["L2"], rtol=1e-5) and np.isclose(a["H1"], b["H1"], rtol=1e-5)
+
+
+def _without_seconds(value):
+    """A summary without its wall-clock times (they differ from run to run)."""
+    if isinstance(value, dict):
+        return {k: _without_seconds(v) for k, v in value.items() if not k.startswith("seconds")}
+    if isinstance(value, list):
+        return [_without_seconds(v) for v in value]
+    return value
+
+
+def test_quality_3d_demo(tmp_path):
+    serial = _run("quality_3d.py", 1, tmp_path / "s")
+    assert {"rows", "table", "histograms"} | SUMMARY_KEYS == serial.keys()
+    assert serial["parameters"]["quick"] is True
+    assert serial["reference"]["targets_deg"] == [30.0, 125.0]
+    rows, table = serial["rows"], serial["table"]
+    assert set(rows[0]) == {
+        "shape",
+        "lattice",
+        "h_over_R",
+        "n_cells",
+        "n_positively_cut",
+        "n_inverted",
+        "theta_min_deg",
+        "theta_max_deg",
+        "radius_ratio_min",
+        "mean_ratio_min",
+        "volume_error_over_h2",
+        "seconds",
+    }
+    assert set(rows[0]["seconds"]) == {
+        "classify",
+        "project",
+        "relax",
+        "map",
+        "mesh",
+        "conform",
+        "background",
+    }
+    # 3 shapes x 2 sizes x 2 lattices, 2 placements each
+    assert len(table) == 12 and len(rows) == 24 and all(t["placements"] == 2 for t in table)
+    assert {t["lattice"] for t in table} == {"A15", "BCC"}
+    assert {t["shape"] for t in table} == {"sphere", "ellipsoid", "torus"}
+    assert {t["h_over_R"] for t in table} == {0.25, 0.125}
+    for t in table:
+        assert t["theta_min_worst"] <= t["theta_min_median"] <= t["theta_max_median"]
+        assert t["theta_max_median"] <= t["theta_max_worst"]
+        assert 0 < t["volume_error_over_h2_median"] <= t["volume_error_over_h2_worst"] < 1
+        if t["lattice"] == "A15":
+            assert t["within_targets"] and 30 <= t["theta_min_worst"], t
+    for r in rows:
+        assert r["n_inverted"] == 0 and 0 < r["mean_ratio_min"] <= 1
+    cells = {lat: {} for lat in ("A15", "BCC")}
+    for r in rows:
+        n = str(round(1 / r["h_over_R"]))
+        cells[r["lattice"]][n] = cells[r["lattice"]].get(n, 0) + r["n_cells"]
+    for lattice, by_h in serial["histograms"].items():
+        for n, counts in by_h.items():
+            assert len(counts) == 180 and sum(counts) == 6 * cells[lattice][n]
+    for name in ("meshes.png", "dihedral_histogram.png"):
+        assert (tmp_path / "s" / name).stat().st_size > 10_000
+    # The same meshes on 2 ranks (up to rounding); times differ and are left out.
+    parallel = _run("quality_3d.py", 2, tmp_path / "p")
+    _same_run(_without_seconds(serial), _without_seconds(parallel), rtol=1e-9)
