@@ -259,7 +259,9 @@ def test_against_reference(name):
     if isinstance(b, Domain):
         np.testing.assert_array_equal(b.component_index(x)[ok], k_ref[ok])
 
-    # exact properties of the projection, independent of the reference's accuracy
+    # exact properties of the projection, independent of the reference's accuracy; their
+    # tolerances are rounding of O(size) values (a converged Newton step, a normalisation:
+    # a few ulps), at least 45 ulps, far below the reference comparisons above
     nrm = b.normal(y)
     np.testing.assert_allclose(np.linalg.norm(nrm, axis=1), 1.0, atol=1e-14)
     assert np.abs(nrm - n_ref)[ok].max() < 1e-6  # finite-difference normals at t_ref
@@ -333,8 +335,11 @@ def test_ellipse_evolute_region():
     # closest points of (p, 0) with |p| < (a^2 - b^2)/a: cos t = a p / (a^2 - b^2)
     ct = 2 * np.array([0.3, 0.3, -0.3, 0.0]) / 3
     exact = np.column_stack([2 * np.abs(ct), np.sqrt(1 - ct**2)])
-    np.testing.assert_allclose(np.abs(y[[0, 3]]), exact[[0, 3]], rtol=1e-14, atol=1e-14)
+    # Newton on the parameter: 1.9e-15 (9 ulps) measured where the exact value is 0; a wrong
+    # branch (the axis vertex, the other nearest point) would be off by O(1).
+    np.testing.assert_allclose(np.abs(y[[0, 3]]), exact[[0, 3]], rtol=0, atol=1e-13)
     np.testing.assert_allclose(np.abs(y[1:3]), exact[1:3], atol=1e-8)  # moved off the axis
+    # t = 0 is a start sample and a root of the Newton function: exact up to an ulp
     np.testing.assert_allclose(y[4:], [[2.0, 0.0], [2.0, 0.0]], atol=1e-15)
     np.testing.assert_allclose(e.normal(y[4:]), [[1.0, 0.0], [1.0, 0.0]], atol=1e-15)
 
@@ -347,7 +352,7 @@ def test_implicit_orientation_and_bbox():
     )  # fmt: skip
     x = np.random.default_rng(2).uniform(-1.5, 1.5, (200, 2))
     np.testing.assert_array_equal(flipped.sign(x), b.sign(x))
-    np.testing.assert_allclose(flipped.normal(x), b.normal(x), atol=1e-12)
+    np.testing.assert_allclose(flipped.normal(x), b.normal(x), atol=1e-12)  # negated gradients
     with pytest.raises(ValueError, match="bbox"):
         ImplicitCurve(super_f, super_grad, bbox=[[-0.5, -0.9], [1.1, 0.9]]).sample(10)
     two = ImplicitCurve(  # two disjoint discs: two loops
@@ -358,7 +363,7 @@ def test_implicit_orientation_and_bbox():
         ),
         bbox=[[-1.6, -0.6], [1.6, 0.6]],
     )  # fmt: skip
-    s = two.sample(100)
+    s = two.sample(100)  # on the curve to rounding: Newton steps end below 1e-12 (quadratic)
     assert (s[:, 0] > 0).sum() == 50
     np.testing.assert_allclose(np.hypot(np.abs(s[:, 0]) - 1, s[:, 1]), 0.5, atol=1e-12)
     u = np.array([-0.8, 0.1]) / np.hypot(0.8, 0.1)
@@ -369,7 +374,7 @@ def test_implicit_orientation_and_bbox():
 def test_spline_interpolates_and_orientation():
     s = PeriodicSpline(SPLINE_POINTS)
     knots = np.concatenate([[0], np.cumsum(np.linalg.norm(np.diff(SPLINE_POINTS, axis=0), axis=1))])
-    np.testing.assert_allclose(s.point(knots), SPLINE_POINTS, atol=1e-14)
+    np.testing.assert_allclose(s.point(knots), SPLINE_POINTS, atol=1e-14)  # cubic: a few ulps
     closed = PeriodicSpline(np.vstack([SPLINE_POINTS, SPLINE_POINTS[:1]]))
     np.testing.assert_array_equal(closed.points, s.points)
     with pytest.warns(UserWarning, match="clockwise"):
@@ -430,12 +435,13 @@ def test_rigid_motion_moved():
     assert still.base is base and still.angle == 0.0
     np.testing.assert_array_equal(still.center, m.center)
     x = np.random.default_rng(4).uniform(-1.5, 1.5, (100, 2))
+    # the identity motion: x - c + c rounds by an ulp of |x| <= 1.5 (1e-14: 30 ulps)
     np.testing.assert_allclose(still.closest_point(x), base.closest_point(x), atol=1e-14)
     np.testing.assert_array_equal(still.sign(x), base.sign(x))
     turned = m.moved(np.pi / 2, (0.0, 0.0))  # rotation by 90 degrees about (1, 0)
     y = base.sample(7)
     moved_y = np.column_stack([1.0 - y[:, 1], y[:, 0] - 1.0])
-    np.testing.assert_allclose(turned.sample(7), moved_y, atol=1e-14)
+    np.testing.assert_allclose(turned.sample(7), moved_y, atol=1e-14)  # cos(pi/2) = 6e-17: ulps
     np.testing.assert_allclose(turned.normal(moved_y), _rot(base.normal(y), np.pi / 2), atol=1e-12)
 
 

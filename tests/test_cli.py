@@ -246,6 +246,8 @@ def test_polar_derivatives():
     theta = np.linspace(-np.pi, 3 * np.pi, 101)
     r, dr, d2r, method = polar_functions("1 + 0.2*cos(3*theta)")
     assert method == "complex-step"
+    # r: the same numpy expression (an ulp at most); r': the complex step, the complex cos of
+    # libm against numpy's real sin (a few ulps of 0.6; 1e-14 = 90 ulps)
     np.testing.assert_allclose(r(theta), 1 + 0.2 * np.cos(3 * theta), rtol=1e-15)
     np.testing.assert_allclose(dr(theta), -0.6 * np.sin(3 * theta), atol=1e-14)
     np.testing.assert_allclose(d2r(theta), -1.8 * np.cos(3 * theta), atol=1e-10)
@@ -279,6 +281,7 @@ def test_mpirun_matches_serial(mpi_tmp_path, capsys):
     assert parallel["facets"] == serial["facets"]
     for key in ("n_positively_cut", "n_unaltered", "n_inverted"):
         assert parallel["quality"][key] == serial["quality"][key]
+    # the same mesh: angles agree to rounding (default rel 1e-6: far above it)
     assert parallel["quality"]["theta_min_deg"] == pytest.approx(serial["quality"]["theta_min_deg"])
     assert parallel["certificate"]["num_cells"] == serial["certificate"]["num_cells"]
     assert (mpi_tmp_path / "mpi" / "mesh.png").stat().st_size > 0

@@ -43,6 +43,8 @@ def test_blend_on_edges_and_vertices(disc):
     ref = pi(
         (t[None, :, None] * b[u][:, None] + (1 - t[None, :, None]) * b[v][:, None]).reshape(-1, 2)
     ).reshape(g.shape)
+    # The same projections, blended with weights 0 and 1: a few ulps of O(1) values (1e-14 =
+    # 45 ulps), here and below.
     assert np.abs(g[:, 1:-1] - ref[:, 1:-1]).max() < 1e-14
     assert np.abs(np.linalg.norm(g - CENTRE, axis=2) - 1.0).max() < 1e-14
     # Vertex limits are exact.
@@ -62,7 +64,8 @@ def test_nodes_consistent_and_on_gamma(disc, degree):
     cv = du.curved_mesh(disc, degree, "I")
     x, dofmap = cv.mesh.geometry.x[:, :2], cv.mesh.geometry.dofmaps[0]
     nodes = _cell_nodes(disc, degree, "G")
-    # Every cell sees the node values it computed itself: neighbours agree on shared nodes.
+    # Every cell sees the node values it computed itself: neighbours agree on shared nodes
+    # (the same formulas from either side: an ulp or two).
     assert np.abs(x[dofmap] - nodes).max() < 1e-14
     # Every geometry node on an immersed facet lies on Gamma.
     topo = cv.mesh.topology
@@ -71,7 +74,7 @@ def test_nodes_consistent_and_on_gamma(disc, degree):
     V = fem.functionspace(cv.mesh, ("Lagrange", degree))
     dofs = fem.locate_dofs_topological(V, 1, facets)
     r = np.linalg.norm(V.tabulate_dof_coordinates()[dofs, :2] - CENTRE, axis=1)
-    assert len(dofs) > 0 and np.abs(r - 1.0).max() < 1e-13
+    assert len(dofs) > 0 and np.abs(r - 1.0).max() < 1e-13  # closest points: rounding only
     assert cv.min_jacobian_ratio > 0.5
 
 
@@ -82,6 +85,7 @@ def test_boundary_dof_data(disc):
     V = fem.functionspace(cv.mesh, ("Lagrange", 2, (2,)))
     dofs, y, n, t = du.boundary_dof_data(V, cv)
     x = V.tabulate_dof_coordinates()[dofs, :2]
+    # Closest points of points on the circle, and normalised radii: rounding only.
     assert len(dofs) > 0 and np.abs(y - x).max() < 1e-13
     radial = (x - CENTRE) / np.linalg.norm(x - CENTRE, axis=1)[:, None]
     assert np.abs(n - radial).max() < 1e-12
@@ -106,6 +110,7 @@ def test_I_and_Itilde_differ_only_where_expected(disc):
     # local edge index of the positive edge = index of the opposite (inside) vertex
     node = 3 + kk
     rows = np.arange(len(cells))
+    # the same projections of the same points (an ulp or two), against a difference > 1e-8
     assert np.abs(a[pc][rows, node] - mid_I).max() < 1e-14
     assert np.abs(b[pc][rows, node] - mid_It).max() < 1e-14
     assert np.abs(mid_I - mid_It).max() > 1e-8  # they really differ

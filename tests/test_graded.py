@@ -58,7 +58,7 @@ def check_mesh(x: np.ndarray, cells: np.ndarray, box) -> dict:
     # Counter-clockwise, area of the box.
     area = signed_areas(x, cells)
     assert area.min() > 0
-    assert np.isclose(area.sum(), (x1 - x0) * (y1 - y0), rtol=1e-12)
+    assert np.isclose(area.sum(), (x1 - x0) * (y1 - y0), rtol=1e-12)  # (sum of n areas: ulps)
     # Strictly acute, within the stencil range.
     ang = np.degrees(interior_angles(x, cells))
     assert np.allclose(ang.sum(axis=1), 180.0)
@@ -84,13 +84,13 @@ def check_mesh(x: np.ndarray, cells: np.ndarray, box) -> dict:
         | ((interior[:, :, 1] == y1).all(1))
     ).any()
     perimeter = np.linalg.norm(b[:, 0] - b[:, 1], axis=1).sum()
-    assert np.isclose(perimeter, 2 * ((x1 - x0) + (y1 - y0)), rtol=1e-12)
+    assert np.isclose(perimeter, 2 * ((x1 - x0) + (y1 - y0)), rtol=1e-12)  # (a sum: ulps)
     # A triangulated disc: V - E + F = 1.
     assert len(x) - len(edges) + len(cells) == 1
     # Neighbouring triangles: diameters differ at most by 1 / sin(min angle) (law of sines).
     diam = edge_lengths(x, cells).max(axis=1)
     ratio = np.maximum(diam[pairs[:, 0]] / diam[pairs[:, 1]], diam[pairs[:, 1]] / diam[pairs[:, 0]])
-    assert ratio.max() <= 1.0 / np.sin(np.radians(lo)) + 1e-12
+    assert ratio.max() <= 1.0 / np.sin(np.radians(lo)) + 1e-12  # (slack for rounding)
     return {
         "min_angle": ang.min(),
         "max_angle": ang.max(),
@@ -129,7 +129,7 @@ def test_stencil(mask):
     on_bnd = (pts == 0) | (pts == 1)
     assert on_bnd[:nb].any(axis=1).all() and not on_bnd[nb:].any()
     area = signed_areas(pts, tris)
-    assert area.min() > 0 and np.isclose(area.sum(), 1.0, rtol=1e-13)
+    assert area.min() > 0 and np.isclose(area.sum(), 1.0, rtol=1e-13)  # (a few areas: ulps)
     ang = np.degrees(interior_angles(pts, tris))
     assert ang.max() < 75.0 and ang.min() > 36.0
     # Stencil boundary: the square's sides split exactly at the prescribed points.

@@ -75,6 +75,8 @@ def test_bernstein_coefficients_reproduce_det(degree):
     order = 2 * (degree - 1)
     assert c.shape == (40, (order + 1) * (order + 2) // 2) == (40, len(bernstein_indices(order)))
     exact = jacobian_determinant(nodes, degree, pts)
+    # A change of basis with a collocation matrix of condition <= 515 (order 8): rounding of
+    # at most about 515 eps = 1e-13 relative, here and at the corners.
     assert np.abs(c @ bernstein_basis(order, pts).T - exact).max() < 1e-12 * np.abs(exact).max()
     # The corner coefficients are the values at the corners.
     alpha = bernstein_indices(order)
@@ -96,6 +98,7 @@ def test_subdivision_is_exact(order):
         parent_pts = lam @ child
         want = c @ bernstein_basis(order, parent_pts).T
         got = (c @ split[:, k, 1]) @ bernstein_basis(order, ref).T
+        # convex combinations of standard normal coefficients: rounding of about 1e-15
         assert np.abs(got - want).max() < 1e-12
         ctrl = bernstein_indices(order) / max(order, 1) @ child
         assert np.allclose(c @ split[:, k, 0], c @ bernstein_basis(order, ctrl).T, atol=1e-12)
@@ -109,6 +112,7 @@ def test_bounds_bracket_the_minimum(degree):
     nodes = np.concatenate([random_cells(degree, 100, rng, a) for a in (0.02, 0.06, 0.15)])
     lower, upper = jacobian_bounds(nodes, degree)
     dense = sampled_min(nodes, degree, 200)
+    # (1e-12: slack for the bounds' rounding, about 1e-13 relative to O(1) ratios)
     assert (lower <= dense + 1e-12).all()
     assert (lower <= upper).all()
     assert (upper - lower <= 0.05 * np.maximum(np.abs(upper), 0.01) + 1e-12).all()  # rtol

@@ -116,7 +116,7 @@ def test_checker_passes_on_conformed_random_domains(conformed, degree):
     assert r["n_loops"] == d.n_curves and r["n_pieces"] == 1
     assert r["min_detJ"] > 0 and 0 < r["min_detJ_ratio"] <= 1 + 1e-12
     assert (r["num_curved_cells"] > 0) == (degree > 1)
-    assert r["max_node_distance"] < 1e-12 * d.extent
+    assert r["max_node_distance"] < 1e-12 * d.extent  # closest points: rounding only
     # the area error is the boundary defect, of the order of h^(q+1)
     assert abs(r["area_error"] - r["boundary_defect"]) <= 0.05 * r["boundary_defect_abs"] + 1e-11
     assert r["area_rel_error"] < {1: 1e-2, 2: 1e-4, 3: 1e-6, 4: 1e-7}[degree]
@@ -138,6 +138,7 @@ def test_lattice_detects_curved_cells():
     full = check_mesh(cv.mesh, cv.facet_tags, DISC, np.pi, n_curves=1, full_lattice=True)
     ncut = comm.allreduce(int(cm.positively_cut[: cm.mesh.topology.index_map(2).size_local].sum()))
     assert r["num_curved_cells"] == ncut and full["num_curved_cells"] == r["num_cells"]
+    # the same per-cell kernels on the same curved cells (affine ones have det J constant)
     assert r["min_detJ_ratio"] == pytest.approx(full["min_detJ_ratio"], abs=1e-14)
     assert r["min_detJ_ratio"] <= cv.min_jacobian_ratio + 1e-3
 
@@ -312,5 +313,7 @@ def test_checks_agree_in_parallel():
         assert r["failures"] == g["failures"] == [], case
         for k in ("num_cells", "num_curved_cells", "n_loops", "n_pieces", "n_immersed_facets"):
             assert r[k] == g[k], (case, k)
+        # the same mesh: sums in another order, nodes computed by another rank (rounding,
+        # ~1e-15 relative); abs: a floor for values near 0
         for k in ("area", "boundary_defect", "boundary_length", "min_detJ_ratio", "min_angle_deg"):
             assert g[k] == pytest.approx(r[k], rel=1e-9, abs=1e-13), (case, k)

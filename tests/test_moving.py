@@ -130,14 +130,19 @@ def _moving_reports(c: MPI.Comm) -> list:
     for a in np.linspace(0, 1, 4):
         r = md.update(du.Domain(None, [du.Ellipse((0.1 * a, 0), 0.5, 0.3, angle=a)]))
         q = r.quality
-        out.append((r.num_active_cells, q["n_positively_cut"], round(q["theta_min_deg"], 9)))
+        out.append((r.num_active_cells, q["n_positively_cut"], q["theta_min_deg"]))
     return out
 
 
 @pytest.mark.mpi
 @needs_ranks(2)
 def test_moving_under_mpi():
-    assert _moving_reports(comm) == _moving_reports(MPI.COMM_SELF)
+    got, ref = _moving_reports(comm), _moving_reports(MPI.COMM_SELF)
+    assert [g[:2] for g in got] == [r[:2] for r in ref]
+    # The same mesh: the angle up to rounding of the positions (a few ulps / h ~ 1e-14
+    # degrees), compared with a tolerance: equality after round(., 9) fails when rounding
+    # straddles a 9th decimal. A changed mesh (a step >= 1e-2 h) moves angles by far more.
+    assert [g[2] for g in got] == pytest.approx([r[2] for r in ref], abs=1e-9)
 
 
 @pytest.mark.mpi

@@ -39,6 +39,7 @@ def test_summary_format(summaries):
     for summary in summaries.values():
         assert list(summary) == ["rows", "parameters", "reference", "versions", "mpi_size"]
         assert summary["parameters"]["quick"] is True and summary["parameters"]["R"] == 3.142
+        # a closed formula of a few operations: ulps
         assert summary["reference"]["w_center_exact"] == pytest.approx(W_EXACT, rel=1e-12)
         assert len(summary["rows"]) == 2 * len(VARIANTS)
         for row in summary["rows"]:

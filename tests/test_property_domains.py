@@ -129,5 +129,7 @@ def test_random_domains_in_parallel():
         assert r["failures"] == [] and g["failures"] == [], (case, r["failures"], g["failures"])
         for k in ("num_cells", "n_loops", "n_pieces", "n_immersed_facets", "refinement_rounds"):
             assert g[k] == r[k], (case, k)
+        # the same mesh: sums in another order, nodes computed by another rank (rounding,
+        # ~1e-15 relative); abs: a floor for values near 0
         for k in ("area", "boundary_defect", "min_detJ_ratio", "min_angle_deg"):
             assert g[k] == pytest.approx(r[k], rel=1e-9, abs=1e-13), (case, k)

@@ -63,10 +63,10 @@ def test_shape_quality_matches_reference():
     ref = _reference_quality(p, a, b, orient)
     ok = ref > -1
     assert ok.any() and (~ok).any()
-    assert np.allclose(q, ref, rtol=1e-12, atol=1e-14)
+    assert np.allclose(q, ref, rtol=1e-12, atol=1e-14)  # two formulas: a few ulps, O(1) values
     # Equilateral: the radius term (1.3) is below the angle term (sin 60 / sin 40 = 1.35).
     tri = np.array([[0.0, 0.0], [1.0, 0.0], [0.5, np.sqrt(3) / 2]])
-    assert shape_quality(tri[0], tri[1], tri[2], 1.0) == pytest.approx(1.3, rel=1e-14)
+    assert shape_quality(tri[0], tri[1], tri[2], 1.0) == pytest.approx(1.3, rel=1e-14)  # ulps
     # A degenerate triangle (two coincident corners) is rejected like an inverted one.
     assert shape_quality(np.zeros(2), np.zeros(2), np.ones(2), 1.0) == -1.0
 
@@ -167,6 +167,8 @@ def test_gamma_vertices_stay_on_gamma(circle24):
     assert np.array_equal(on.on_positive_edge, off.on_positive_edge)
     g = on.on_positive_edge
     r = np.linalg.norm(on.x[g] - np.asarray(CENTRE), axis=1)
+    # Closest points of the unit circle: rounding only (a few ulps; 1e-13 = 450 ulps), as the
+    # distances below (the same projections, relaxed or not).
     assert np.abs(r - 1.0).max() < 1e-13
     # The vertices on Gamma slid (not only snapped), and the curved maps' background
     # positions follow them: pi(background_x) = x there, at the same distance from Gamma.
@@ -240,13 +242,14 @@ def test_curved_maps_conform_after_relaxation(circle24, degree):
     cm = circle24[True]
     cv = du.curved_mesh(cm, degree)
     x, dofmap = cv.mesh.geometry.x[:, :2], cv.mesh.geometry.dofmaps[0]
+    # every cell computes its nodes with the same formulas: shared nodes agree to an ulp or two
     assert np.abs(x[dofmap] - _cell_nodes(cm, degree, "G")).max() < 1e-14
     V = fem.functionspace(cv.mesh, ("Lagrange", degree))
     cv.mesh.topology.create_connectivity(1, 2)
     dofs = fem.locate_dofs_topological(V, 1, cv.facet_tags.find(du.IMMERSED))
     r = np.linalg.norm(V.tabulate_dof_coordinates()[dofs, :2] - np.asarray(CENTRE), axis=1)
     assert MPI.COMM_WORLD.allreduce(len(dofs)) > 0
-    assert np.abs(r - 1.0).max(initial=0.0) < 1e-13
+    assert np.abs(r - 1.0).max(initial=0.0) < 1e-13  # closest points: rounding only
     assert cv.min_jacobian_ratio > 0.5
     one = fem.Constant(cv.mesh, 1.0)
     area = MPI.COMM_WORLD.allreduce(
@@ -272,7 +275,7 @@ def test_moving_domain_relaxes():
         dofs = fem.locate_dofs_topological(V, 1, md.immersed_facets)
         dofs = dofs[dofs < V.dofmap.index_map.size_local]  # (ghost nodes: see moving.py)
         r = np.linalg.norm(V.tabulate_dof_coordinates()[dofs, :2] - circle.center, axis=1)
-        assert np.abs(r - 1.0).max(initial=0.0) < 1e-13
+        assert np.abs(r - 1.0).max(initial=0.0) < 1e-13  # closest points: rounding only
 
 
 def test_relax_vertices_never_lowers_a_star():

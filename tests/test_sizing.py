@@ -320,7 +320,9 @@ def test_thin_body_in_container():
     cont = s.labels == 0
     assert np.all(r_in[cont] <= 2 * (1 + 1e-9))
     diag = np.linalg.norm(s.points.max(0) - s.points.min(0))
-    assert np.all(r_out[cont] == diag)
+    # the cap, to an ulp: np.linalg.norm goes through BLAS ddot, which OpenBLAS's SkylakeX
+    # kernel evaluates with a fused multiply-add (8 % of 2-vectors differ by an ulp there)
+    assert np.allclose(r_out[cont], diag, rtol=1e-12, atol=0)
 
 
 def test_polar_neck():
@@ -369,7 +371,7 @@ def test_straight_parts_give_no_tiny_radii():
     )
     r_in, r_out = medial_radius(s, r_max=100.0)
     assert np.allclose(r_in, R, rtol=1e-9)
-    flat = np.abs(np.abs(p[:, 1]) - R) < 1e-15
+    flat = np.abs(np.abs(p[:, 1]) - R) < 1e-15  # the sides (y = +-R exactly), arc ends (ulps)
     assert np.all(r_out[flat] == 100.0)
 
 
@@ -473,6 +475,7 @@ def test_size_field_against_brute_force():
     field = SizeField(p, s, h_max, g)
     x = np.concatenate([rng.uniform(-1.5, 1.5, (4000, 2)), p[:500]])
     H, E = field(x), exact_field(x, p, s, h_max, g)
+    # (1 + 1e-12): the same min of s_i + g |x - p_i| evaluated another way differs by ulps
     assert np.all(H <= E * (1 + 1e-12)) and np.all(H >= E / 1.1 * (1 - 1e-12))
     assert np.all(H <= h_max) and np.all(H > 0)
     assert np.all(field(p) <= s)
@@ -505,7 +508,7 @@ def test_size_field_combinations_and_pickle():
     assert np.all(ref(x) <= field(x))
     assert np.all(ref(spots) <= 0.001) and np.all(ref(spots) >= 0.001 / 1.1)
     exact = exact_field(x, np.vstack([p, spots]), np.concatenate([s, [0.001, 0.001]]), 0.3, 0.2)
-    assert np.all(ref(x) <= exact * (1 + 1e-12)) and np.all(ref(x) >= exact / 1.1)
+    assert np.all(ref(x) <= exact * (1 + 1e-12)) and np.all(ref(x) >= exact / 1.1)  # (ulps)
     other = SizeField(spots, [0.002, 0.5], 0.25, gradation=0.5)
     both = field.minimum(other)
     assert both.h_max == 0.25 and both.gradation == 0.5
@@ -543,7 +546,7 @@ def test_size_field_speed():
         E = exact_field(x[sub], samples.points, sizes, h_max, 0.2)
         assert np.all(H <= h_max) and H.min() >= sizes.min() / 1.1
         Hs = field(x[sub])
-        assert np.all(Hs <= E * (1 + 1e-12)) and np.all(Hs >= E / 1.1)
+        assert np.all(Hs <= E * (1 + 1e-12)) and np.all(Hs >= E / 1.1)  # (1e-12: ulps)
         lines.append(
             f"h_max {h_max}: {len(samples.points)} sources (sizes >= {sizes.min():.3g}), "
             f"build {t0 - t:.3f} s, {m:.0e} points {t1 - t0:.3f} s"
@@ -557,6 +560,6 @@ def test_size_field_speed():
     H = field(y)
     t1 = time.perf_counter()
     E = 0.01 + 0.2 * (1 - np.linalg.norm(y[:2000], axis=1))
-    assert np.all(H[:2000] <= E * (1 + 1e-12)) and np.all(H[:2000] >= E / 1.1)
+    assert np.all(H[:2000] <= E * (1 + 1e-12)) and np.all(H[:2000] >= E / 1.1)  # (ulps)
     lines.append(f"1e5 sources of size 0.01 on a unit circle, 1e5 points inside: {t1 - t0:.3f} s")
     print("\nsize_field: " + "; ".join(lines))

@@ -82,5 +82,8 @@ def test_serial_equals_parallel(runs):
     for key in ("steps", "background_cells", "angles_deg"):
         assert serial[key] == parallel[key]
     assert parallel["torque"] == pytest.approx(serial["torque"], rel=1e-6)
-    assert parallel["min_angle_deg"] == pytest.approx(serial["min_angle_deg"], rel=1e-12)
-    assert parallel["max_q"] == pytest.approx(serial["max_q"], rel=1e-12)
+    # The same meshes (relaxation decisions do not depend on the partition, TIE in relax.py):
+    # equal here, but positions may differ by rounding (~1e-15), which moves angles by about
+    # 1e-15 / h ~ 1e-13 (h = 0.012); a changed mesh (>= 1e-9 h) moves them by >= 1e-9.
+    assert parallel["min_angle_deg"] == pytest.approx(serial["min_angle_deg"], rel=1e-10)
+    assert parallel["max_q"] == pytest.approx(serial["max_q"], rel=1e-10)
