@@ -230,11 +230,13 @@ class CellLocator:
         ``-tol`` (relative: on a facet up to rounding is inside).
         """
         n, d = points.shape
+        if len(self.keys) == 0:  # no cell on this rank
+            return np.zeros(n, dtype=bool)
         ij = np.floor((points - self.origin) / self.g).astype(np.int64)
         ok = (ij >= 0).all(axis=1) & (ij < self.shape).all(axis=1)
         key = np.where(ok, ij @ self.strides, -1)
-        slot = np.minimum(np.searchsorted(self.keys, key), max(len(self.keys) - 1, 0))
-        ok &= (self.keys[slot] == key) if len(self.keys) else False
+        slot = np.minimum(np.searchsorted(self.keys, key), len(self.keys) - 1)
+        ok &= self.keys[slot] == key
         start, stop = self.offsets[slot], self.offsets[slot + 1]
         num = np.where(ok, stop - start, 0)
         pt = np.repeat(np.arange(n), num)

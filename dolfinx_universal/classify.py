@@ -173,22 +173,21 @@ def perturbation_candidates(x: Float, phi: Float, s: Float, cells: Int, eta: flo
     return cast(Int, np.unique(c[hit & (s[c] < 0)]))
 
 
-def shifted_vertices(phi: Float, s: Float, cells: Int, eta: float, h: Float) -> Int:
-    """Inside vertices of ``cells`` within ``eta h`` of Gamma, to count as on Gamma (3D).
+def shifted_vertices(phi: Float, s: Float, eta: float, h: Float) -> Int:
+    """Inside vertices within ``eta h`` of Gamma, to count as on Gamma (tetrahedra).
 
     The tetrahedral form of the quality perturbation (Rangarajan, Kabaria & Lew 2019): a
     vertex with ``-eta h <= phi < 0`` is relocated onto Gamma. Without it, inside vertices
     just below the surface are passed by the snapped positive faces (chords of the surface)
-    and their tetrahedra invert.
+    and their tetrahedra invert. ``phi`` is ``-inf`` at inside vertices outside the band.
 
     Returns
     -------
-    Unique vertex indices (process-local), possibly empty.
+    Vertex indices (process-local), possibly empty.
     """
-    if eta <= 0 or len(cells) == 0:
+    if eta <= 0:
         return np.empty(0, dtype=np.int64)
-    v = np.unique(cells)
-    return cast(Int, v[(s[v] < 0) & (phi[v] >= -eta * h[v])])
+    return np.flatnonzero((s < 0) & (phi >= -eta * h))
 
 
 def straight_map(

@@ -398,7 +398,7 @@ class UniversalMesh:
         s, phi, closest, normal = project_band(comm, boundary, x, s, band, self.h)
         timings["project"] = time.perf_counter() - t1
         t2 = time.perf_counter()
-        near_all, near_cells = band_cells(self.background.topology, band, self._nco)
+        near_all, near_cells = band_cells(self.background.topology, band, self._nco, c2v)
         xp, phi, s, num_relocated = perturb(
             comm, imv, x, phi, s, closest, c2v[near_cells], self.eta, self.h
         )

@@ -146,11 +146,14 @@ def project_band(
 
 
 def band_cells(
-    topology: dmesh.Topology, band: Int, num_owned_cells: int
+    topology: dmesh.Topology, band: Int, num_owned_cells: int, c2v: Int
 ) -> tuple[npt.NDArray[np.int32], npt.NDArray[np.int32]]:
     """Cells with a vertex in the band: all of them, and the owned ones.
 
-    Every moved or positively cut cell is among them.
+    Every moved or positively cut cell is among them. Triangles: DOLFINx's incident
+    entities of the band's vertices. Tetrahedra: a scan of all cells, 5 times faster at
+    1.2e6 tetrahedra, where the band (``R_r = 3 h`` on both sides of a surface) holds a
+    quarter of the cells; the same cells, in increasing order.
 
     Parameters
     ----------
@@ -160,6 +163,8 @@ def band_cells(
         Band vertices ``(num_band,)``.
     num_owned_cells
         Number of owned cells (the first ones).
+    c2v
+        Cell -> vertex connectivity ``(num_cells, tdim + 1)``.
 
     Returns
     -------
@@ -168,7 +173,15 @@ def band_cells(
     near_owned
         The owned ones among them ``(m_owned,)``.
     """
-    near_all = dmesh.compute_incident_entities(topology, band.astype(np.int32), 0, topology.dim)
+    if topology.dim == 2:
+        near_all = dmesh.compute_incident_entities(topology, band.astype(np.int32), 0, 2)
+    else:
+        mark = np.zeros(topology.index_map(0).size_local + topology.index_map(0).num_ghosts, bool)
+        mark[band] = True
+        near = mark[c2v[:, 0]]
+        for k in range(1, c2v.shape[1]):
+            near |= mark[c2v[:, k]]
+        near_all = np.flatnonzero(near).astype(np.int32)
     return near_all, near_all[near_all < num_owned_cells]
 
 
@@ -223,7 +236,7 @@ def perturb(
         if near.shape[1] == 3:
             cand = perturbation_candidates(xp, phi, s, near, eta)
         else:
-            cand = shifted_vertices(phi, s, near, eta, h)
+            cand = shifted_vertices(phi, s, eta, h)
         if not comm.allreduce(bool((~relocated[cand]).any()), op=MPI.LOR):
             break  # nothing new on any rank (no reduction of flags needed)
         flag = np.zeros(nv)
