@@ -96,7 +96,7 @@ def classification_problems(
     """
     pc_owned, w = edges.cells, edges.w
     kernels = cell_kernels(c2v.shape[1] - 1)
-    tdim, cell, facet = kernels.tdim, kernels.name, kernels.facet_name
+    tdim, cells, facet = kernels.tdim, kernels.plural, kernels.facet_name
     problems = []
     theta_max = 0.0
     if len(pc_owned):
@@ -147,7 +147,7 @@ def classification_problems(
         if len(shared):
             problems.append(
                 Problem(
-                    f"Gamma crosses both {cell}s beside the positive {facet} near {{where}} (a "
+                    f"Gamma crosses both {cells} beside the positive {facet} near {{where}} (a "
                     "thin part of the domain or of its exterior): the background is too "
                     "coarse there, refine near it",
                     centre[shared],
@@ -169,7 +169,7 @@ def classification_problems(
         ),
         (
             lost,
-            f"vertices outside the domain at {{where}} belong to kept {cell}s but to no "
+            f"vertices outside the domain at {{where}} belong to kept {cells} but to no "
             f"positive {facet}, so they would not be snapped: Gamma is under-resolved there; "
             "refine the background near them",
         ),
@@ -348,7 +348,7 @@ def conforming_problems(
         centre = y[cells[inverted]].mean(axis=1)
         problems.append(
             Problem(
-                f"{{count}} conforming {k.name}s would be inverted or degenerate near {{where}}: "
+                f"{{count}} conforming {k.plural} would be inverted or degenerate near {{where}}: "
                 "the background is too coarse or not acute there; refine near those points "
                 "or use an acute (e.g. equilateral or A15) background",
                 centre,
@@ -571,7 +571,7 @@ def low_quality_cells(
         return None, lo, hi
     what = "an angle" if k.tdim == 2 else "a dihedral angle"
     problem = Problem(
-        f"{{count}} conforming {k.name}s have {what} below the quality floor of "
+        f"{{count}} conforming {k.plural} have {what} below the quality floor of "
         f"{min_angle_deg:g} degrees near {{where}}: refine the background there (or lower "
         "min_angle)",
         y[cells[bad]].mean(axis=1),

@@ -30,6 +30,8 @@ class CellKernels:
     """DOLFINx cell type."""
     name: str
     """Cell name in messages ("triangle", "tetrahedron")."""
+    plural: str
+    """Cell name in messages, plural ("triangles", "tetrahedra")."""
     facet_name: str
     """Facet name in messages ("edge", "face")."""
     signed_measures: Callable[[Float, Int], Float]
@@ -57,6 +59,7 @@ def _tetrahedra() -> CellKernels:
         tdim=3,
         cell_type=dmesh.CellType.tetrahedron,
         name="tetrahedron",
+        plural="tetrahedra",
         facet_name="face",
         signed_measures=tet.signed_volumes,
         cell_diameters=tet.cell_diameters,
@@ -70,6 +73,7 @@ _TRIANGLES = CellKernels(
     tdim=2,
     cell_type=dmesh.CellType.triangle,
     name="triangle",
+    plural="triangles",
     facet_name="edge",
     signed_measures=_geometry.signed_areas,
     cell_diameters=_geometry.cell_diameters,
