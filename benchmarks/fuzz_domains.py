@@ -13,6 +13,17 @@ equilateral background fine enough for its smallest feature (outcome ``skipped``
 
     python benchmarks/fuzz_domains.py --quick --out out/fuzz
     python benchmarks/fuzz_domains.py --n 2000 --degrees 1,2,3,4 --out out/fuzz
+
+``--dim 3``: random closed surfaces instead (``tests/random_surfaces.py``: ellipsoids up to
+aspect 6, tori with random axes, superellipsoids and Gaussian blobs under random rigid
+motions, containers with 1-3 bodies), meshed with ``mesh_domain(comm, surface, h)`` (degree
+1) and checked by ``tests/mesh_checks_3d.py`` (signed volumes, the immersed faces as a
+closed oriented 2-manifold with the right Euler characteristics, vertices on Gamma, volume
+against the exact one, one piece); the same outcomes, plus the smallest and largest
+dihedral angles (target: at least 20 degrees on every domain), refinement rounds and times.
+
+    python benchmarks/fuzz_domains.py --dim 3 --n 20 --out out/fuzz3d
+    python benchmarks/fuzz_domains.py --dim 3 --n 500 --out out/fuzz3d
 """
 
 from __future__ import annotations
@@ -37,6 +48,9 @@ from mesh_checks import check_domain_mesh  # noqa: E402
 from random_domains import KINDS, random_domain  # noqa: E402
 
 OUTCOMES = ("ok", "meshing_error", "wrong_mesh", "exception", "skipped")
+OUTCOMES_3D = ("ok", "meshing_error", "wrong_mesh", "exception", "timeout")
+TARGET_DIHEDRAL = 20.0
+"""The issue's target: smallest dihedral angle of every 3D mesh (degrees)."""
 
 
 def _cert(result: Any, name: str) -> Any:
@@ -230,20 +244,246 @@ def print_table(s: dict) -> None:
         )
 
 
+# ----------------------------------------------------------------------------- 3D mode
+class _Timeout(BaseException):
+    """``mesh_domain`` ran past ``--timeout`` (serial runs only). A BaseException: the
+    package turns the Exceptions of user callbacks into MeshingErrors."""
+
+
+def _alarm(signum: int, frame: Any) -> None:
+    raise _Timeout
+
+
+def run_one_3d(
+    comm: MPI.Comm, seed: int, mild: bool, max_cells: float, timeout: float | None = None
+) -> dict:
+    """Mesh and check one random surface (degree 1); a JSON-serialisable record.
+
+    With ``timeout`` (seconds, serial only) a ``mesh_domain`` call still running then is
+    stopped (at the next Python bytecode) and recorded as ``timeout``.
+    """
+    import signal
+
+    from mesh_checks_3d import check_surface_mesh
+    from random_surfaces import random_surface
+
+    t0 = time.perf_counter()
+    d = random_surface(seed, mild=mild)
+    rec: dict[str, Any] = {
+        "seed": seed,
+        "kind": d.kind,
+        "degree": 1,
+        "h": d.h,
+        "h_over_feature": d.h / d.min_feature,
+        "extent_over_feature": d.extent / d.min_feature,
+        "estimated_cells": d.estimated_cells,
+        "n_surfaces": d.n_components,
+        "description": d.description,
+        "generate_time": time.perf_counter() - t0,
+    }
+    comm.Barrier()
+    alarm = timeout is not None and comm.size == 1
+    if alarm:
+        signal.signal(signal.SIGALRM, _alarm)
+        signal.setitimer(signal.ITIMER_REAL, float(timeout))  # type: ignore[arg-type]
+    t0 = time.perf_counter()
+    try:
+        result = du.mesh_domain(comm, d.boundary, d.h, max_cells=max_cells)
+    except _Timeout:
+        rec.update(outcome="timeout", message=f"mesh_domain still running after {timeout} s")
+        rec["time"] = time.perf_counter() - t0
+        return rec
+    except du.MeshingError as e:
+        rec.update(outcome="meshing_error", message=str(e)[:1500])
+        rec["time"] = time.perf_counter() - t0
+        return rec
+    except Exception as e:  # noqa: BLE001 - every failure is recorded
+        rec.update(
+            outcome="exception",
+            message=f"{type(e).__name__}: {e}"[:400],
+            traceback=traceback.format_exc()[-2000:],
+        )
+        rec["time"] = time.perf_counter() - t0
+        return rec
+    finally:
+        if alarm:
+            signal.setitimer(signal.ITIMER_REAL, 0.0)
+    rec["time"] = time.perf_counter() - t0
+    rec["timings"] = dict(result.timings)
+    t1 = time.perf_counter()
+    try:
+        r = check_surface_mesh(result.mesh, result.facet_tags, d, d.label)
+    except Exception as e:  # noqa: BLE001
+        rec.update(
+            outcome="exception",
+            message=f"check_surface_mesh: {type(e).__name__}: {e}"[:400],
+            traceback=traceback.format_exc()[-2000:],
+        )
+        return rec
+    rec["check_time"] = time.perf_counter() - t1
+    rec["outcome"] = "wrong_mesh" if r["failures"] else "ok"
+    if r["failures"]:
+        rec["message"] = " | ".join(r["failures"])[:800]
+    for k in (
+        "num_cells",
+        "min_dihedral_deg",
+        "max_dihedral_deg",
+        "min_normalised_volume",
+        "volume_rel_error",
+        "volume_constant",
+        "max_node_distance",
+        "surface_faces",
+        "surface_euler",
+        "h_face",
+    ):
+        rec[k] = r[k]
+    rec["below_target"] = bool(r["min_dihedral_deg"] < TARGET_DIHEDRAL)
+    for k in (
+        "min_angle_deg",
+        "max_angle_deg",
+        "refinement_rounds",
+        "refinements",
+        "h_min",
+        "num_background_cells",
+    ):
+        rec[f"cert_{k}"] = _cert(result, k)
+    return rec
+
+
+def summarise_3d(records: list[dict], wall: float) -> dict:
+    """Counts, times and dihedral-angle percentiles of the 3D records."""
+    from random_surfaces import KINDS as KINDS_3D
+
+    n = len(records)
+    counts = Counter(r["outcome"] for r in records)
+    meshed = [r for r in records if r["outcome"] in ("ok", "wrong_mesh")]
+    times = [r["time"] for r in meshed]
+    rounds = Counter(r.get("cert_refinement_rounds") for r in meshed)
+    q = [0, 1, 5, 50]
+    return {
+        "n": n,
+        "dim": 3,
+        "mesher": "mesh_domain (degree 1)",
+        "wall_s": wall,
+        "counts": {k: counts.get(k, 0) for k in OUTCOMES_3D},
+        "success_rate": counts.get("ok", 0) / n if n else 0.0,
+        "by_kind": {
+            k: dict(Counter(r["outcome"] for r in records if r["kind"] == k)) for k in KINDS_3D
+        },
+        "time_s": {
+            "median": float(np.median(times)) if times else None,
+            "mean": float(np.mean(times)) if times else None,
+            "max": float(np.max(times)) if times else None,
+            "per_kind_median": {
+                k: float(np.median([r["time"] for r in meshed if r["kind"] == k]))
+                for k in KINDS_3D
+                if any(r["kind"] == k for r in meshed)
+            },
+        },
+        "check_time_s_median": float(
+            np.median([r["check_time"] for r in records if "check_time" in r] or [np.nan])
+        ),
+        "num_cells_percentiles_50_100": _pct([r.get("num_cells") for r in meshed], [50, 100]),
+        "min_dihedral_percentiles_0_1_5_50": _pct([r.get("min_dihedral_deg") for r in meshed], q),
+        "max_dihedral_percentiles_50_95_99_100": _pct(
+            [r.get("max_dihedral_deg") for r in meshed], [50, 95, 99, 100]
+        ),
+        "below_target": [r["seed"] for r in meshed if r.get("below_target")],
+        "volume_constant_percentiles_50_100": _pct(
+            [r.get("volume_constant") for r in meshed], [50, 100]
+        ),
+        "refinement_rounds": {str(k): v for k, v in sorted(rounds.items(), key=str)},
+        "failures": [
+            {k: r.get(k) for k in ("seed", "kind", "outcome", "message", "description")}
+            for r in records
+            if r["outcome"] != "ok"
+        ],
+    }
+
+
+def print_table_3d(s: dict) -> None:
+    """The 3D summary as text."""
+    print(f"\n{s['n']} random surfaces through {s['mesher']} in {s['wall_s']:.1f} s")
+    print("| outcome | count |\n|---|---|")
+    for k, v in s["counts"].items():
+        print(f"| {k} | {v} |")
+    print(f"success rate: {100 * s['success_rate']:.2f} %")
+    t = s["time_s"]
+    if t["median"] is not None:
+        print(
+            f"time per domain: median {t['median']:.2f} s, mean {t['mean']:.2f} s, max "
+            f"{t['max']:.2f} s (checks: median {s['check_time_s_median']:.2f} s); per kind "
+            + ", ".join(f"{k} {v:.2f}" for k, v in t["per_kind_median"].items())
+        )
+    print(f"min dihedral p0/p1/p5/p50: {s['min_dihedral_percentiles_0_1_5_50']}")
+    print(f"max dihedral p50/p95/p99/p100: {s['max_dihedral_percentiles_50_95_99_100']}")
+    print(f"below {TARGET_DIHEDRAL:g} degrees: {s['below_target']}")
+    print(f"cells p50/p100: {s['num_cells_percentiles_50_100']}")
+    print(f"volume constant p50/p100: {s['volume_constant_percentiles_50_100']}")
+    print(f"refinement rounds: {s['refinement_rounds']}")
+    print("\n| kind | outcomes |\n|---|---|")
+    for k, v in s["by_kind"].items():
+        print(f"| {k} | {', '.join(f'{o}: {c}' for o, c in sorted(v.items()))} |")
+    for f in s["failures"][:40]:
+        print(f"- seed={f['seed']} kind={f['kind']}: {f['outcome']}: {f['message']}")
+
+
+def main_3d(args: argparse.Namespace) -> dict:
+    """The 3D mode of :func:`main`."""
+    from random_surfaces import KINDS as KINDS_3D
+
+    comm = MPI.COMM_WORLD
+    n = 20 if args.quick else (args.n if args.n is not None else 500)
+    kinds = args.kinds.split(",") if args.kinds else list(KINDS_3D)
+    records = []
+    t0 = time.perf_counter()
+    try:
+        for i in range(n):
+            seed = args.seed0 + i
+            if KINDS_3D[seed % len(KINDS_3D)] not in kinds:
+                continue
+            rec = run_one_3d(comm, seed, args.mild, args.mesh_max_cells, args.timeout)
+            records.append(rec)
+            if comm.rank == 0:
+                extra = (
+                    f"dihedral [{rec['min_dihedral_deg']:.1f}, {rec['max_dihedral_deg']:.1f}]"
+                    if "min_dihedral_deg" in rec
+                    else rec.get("message", "")[:300]
+                )
+                print(
+                    f"seed={seed} kind={rec['kind']}: {rec['outcome']} in {rec['time']:.1f} s "
+                    f"(~{rec['estimated_cells']:.2g} bg tets) {extra}",
+                    flush=True,
+                )
+            if args.out is not None and comm.rank == 0 and (i + 1) % 10 == 0:
+                _write(args.out, summarise_3d(records, time.perf_counter() - t0), records)
+    finally:
+        summary = summarise_3d(records, time.perf_counter() - t0)
+        if comm.rank == 0:
+            print_table_3d(summary)
+            if args.out is not None:
+                _write(args.out, summary, records)
+    return summary
+
+
+def _write(out: Path, summary: dict, records: list[dict]) -> None:
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "summary.json").write_text(json.dumps({**summary, "records": records}, indent=1))
+
+
 def main(argv: list[str] | None = None) -> dict:
     """Command line entry point; returns the summary."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--n", type=int, default=2000, help="number of random domains")
+    p.add_argument("--dim", type=int, choices=(2, 3), default=2, help="2: curves, 3: surfaces")
+    p.add_argument("--n", type=int, default=None, help="number of random domains (2000; 3D: 500)")
     p.add_argument("--seed0", type=int, default=0, help="first seed")
     p.add_argument(
         "--degrees",
         default="1,2,3,4",
         help="geometry degrees, cycled over the seeds (comma-separated)",
     )
-    p.add_argument("--quick", action="store_true", help="50 domains")
-    p.add_argument(
-        "--kinds", default=",".join(KINDS), help="kinds to run (comma-separated; others skipped)"
-    )
+    p.add_argument("--quick", action="store_true", help="50 domains (3D: 20)")
+    p.add_argument("--kinds", default=None, help="kinds to run (comma-separated; others skipped)")
     p.add_argument("--out", type=Path, default=None, help="directory for summary.json")
     p.add_argument(
         "--max-cells",
@@ -256,11 +496,30 @@ def main(argv: list[str] | None = None) -> dict:
         action="store_true",
         help="skip timing conform + curved_mesh on the final background",
     )
+    p.add_argument(
+        "--mild",
+        action="store_true",
+        help="3D: the generator's mild ranges (the test suite's cheap cases)",
+    )
+    p.add_argument(
+        "--mesh-max-cells",
+        type=float,
+        default=5e6,
+        help="3D: max_cells of mesh_domain (its default: 5e6)",
+    )
+    p.add_argument(
+        "--timeout",
+        type=float,
+        default=None,
+        help="3D, serial: stop a mesh_domain call after this many seconds (outcome timeout)",
+    )
     args = p.parse_args(argv)
+    if args.dim == 3:
+        return main_3d(args)
     comm = MPI.COMM_WORLD
-    n = 50 if args.quick else args.n
+    n = 50 if args.quick else (args.n if args.n is not None else 2000)
     degrees = [int(q) for q in args.degrees.split(",")]
-    kinds = args.kinds.split(",")
+    kinds = args.kinds.split(",") if args.kinds else list(KINDS)
     records = []
     t0 = time.perf_counter()
     try:
