@@ -430,17 +430,31 @@ def print_table_3d(s: dict) -> None:
 
 def main_3d(args: argparse.Namespace) -> dict:
     """The 3D mode of :func:`main`."""
+    import signal
+
     from random_surfaces import KINDS as KINDS_3D
 
     comm = MPI.COMM_WORLD
     n = 20 if args.quick else (args.n if args.n is not None else 500)
     kinds = args.kinds.split(",") if args.kinds else list(KINDS_3D)
-    records = []
+    records: list[dict] = []
+    wall0 = 0.0
+    if args.resume and args.out is not None and (args.out / "summary.json").exists():
+        old = json.loads((args.out / "summary.json").read_text())
+        if old.get("dim") == 3:
+            records, wall0 = old.get("records", []), float(old.get("wall_s", 0.0))
+    done = {r["seed"] for r in records}
+
+    def _terminate(signum: int, frame: Any) -> None:
+        raise SystemExit(f"signal {signum}")  # write the summary on the way out
+
+    if comm.size == 1:
+        signal.signal(signal.SIGTERM, _terminate)
     t0 = time.perf_counter()
     try:
         for i in range(n):
             seed = args.seed0 + i
-            if KINDS_3D[seed % len(KINDS_3D)] not in kinds:
+            if KINDS_3D[seed % len(KINDS_3D)] not in kinds or seed in done:
                 continue
             rec = run_one_3d(comm, seed, args.mild, args.mesh_max_cells, args.timeout)
             records.append(rec)
@@ -455,10 +469,12 @@ def main_3d(args: argparse.Namespace) -> dict:
                     f"(~{rec['estimated_cells']:.2g} bg tets) {extra}",
                     flush=True,
                 )
-            if args.out is not None and comm.rank == 0 and (i + 1) % 10 == 0:
-                _write(args.out, summarise_3d(records, time.perf_counter() - t0), records)
+            if args.out is not None and comm.rank == 0:
+                wall = wall0 + time.perf_counter() - t0
+                _write(args.out, summarise_3d(records, wall), records)
     finally:
-        summary = summarise_3d(records, time.perf_counter() - t0)
+        records.sort(key=lambda r: r["seed"])
+        summary = summarise_3d(records, wall0 + time.perf_counter() - t0)
         if comm.rank == 0:
             print_table_3d(summary)
             if args.out is not None:
@@ -506,6 +522,11 @@ def main(argv: list[str] | None = None) -> dict:
         type=float,
         default=5e6,
         help="3D: max_cells of mesh_domain (its default: 5e6)",
+    )
+    p.add_argument(
+        "--resume",
+        action="store_true",
+        help="3D: keep the records of OUT/summary.json and run only the missing seeds",
     )
     p.add_argument(
         "--timeout",
