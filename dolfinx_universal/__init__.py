@@ -26,6 +26,7 @@ from .constraints import SlipConstraint
 from .curved import CurvedMesh, boundary_dof_data, curved_mesh
 from .domain import Certificate, MeshedDomain, mesh_domain
 from .graded import graded_mesh
+from .graded_tet import graded_tet_mesh
 from .moving import MovingDomain
 from .moving_problem import MovingLinearProblem, MovingStokes
 from .quality import quality_report
@@ -72,6 +73,7 @@ __all__ = [
     "curved_mesh",
     "equilateral_mesh",
     "graded_mesh",
+    "graded_tet_mesh",
     "io",
     "mesh_domain",
     "positive_edges",

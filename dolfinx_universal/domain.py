@@ -6,7 +6,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from mpi4py import MPI
 
@@ -18,6 +18,7 @@ from .boundaries import Boundary, Domain
 from .conform import ConformingMesh, conform
 from .curved import MAPS, CurvedMesh, curved_mesh
 from .graded import EDGE_FACTOR, graded_mesh
+from .graded_tet import BandSizeField
 from .quality import quality_report
 from .sizing import SizeField, feature_size, target_sizes
 from .validation import MeshingError, where
@@ -28,6 +29,17 @@ Float = npt.NDArray[np.float64]
 
 GRADATION = 0.2
 """Growth of the background's size away from the boundary (size change per unit length)."""
+
+OUTER_BAND = 2.0
+"""Half-width (in sizes) of the uniform band of the graded tetrahedral background on the
+side of Gamma outside the domain (its cells are cut or dropped, never relaxed); on the
+domain's side it is ``relaxation_factor + 2``."""
+TET_GRADATION = 0.25
+"""Growth of the graded tetrahedral background's size beyond its uniform band around Gamma.
+Below 1/3, so that no vertex of a level change lies within its relaxation radius
+``R_r = 3 h`` of Gamma (``h`` its local size, up to twice the leaf side there): a vertex at
+distance ``d`` beyond the band sees sizes about ``s + g d``, and ``3 (s + g d) < d`` far
+away only if ``g < 1/3`` (with 0.5, every far vertex would be relaxed)."""
 
 
 @dataclass(frozen=True)
@@ -306,6 +318,7 @@ def mesh_domain(
     max_rounds: int = 8,
     max_cells: float = 5e6,
     relax: bool = True,
+    tet_background: str = "auto",
 ) -> MeshedDomain:
     """Mesh the domain bounded by ``boundary``: the one call a user makes (collective).
 
@@ -354,6 +367,15 @@ def mesh_domain(
     relax
         Relax the vertices near Gamma after ``M_h`` (see
         :class:`~dolfinx_universal.conform.UniversalMesh`).
+    tet_background
+        Background of surfaces (one of :data:`TET_BACKGROUNDS`): ``"a15"``, a uniform A15
+        lattice of the smallest target size (dihedral angles 53-79 degrees); ``"graded"``, a
+        graded BCC octree (:func:`~dolfinx_universal.graded_tet.graded_tet_mesh`), uniform
+        (BCC, 60-90 degrees) in a band of ``relaxation_factor + 2`` sizes around each
+        component of Gamma; ``"auto"`` (default): the octree where it has fewer than
+        :data:`AUTO_RATIO` times the tetrahedra of the A15 background (a small body in a
+        large box: a tenth), else A15 (whose angles after relaxation are a few degrees
+        better).
 
     Returns
     -------
@@ -387,8 +409,15 @@ def mesh_domain(
         raise ValueError(
             "curved tetrahedra (degree > 1) are not available yet: use degree=1 for surfaces"
         )
+    if tet_background not in TET_BACKGROUNDS:
+        raise ValueError(
+            f"unknown tet_background {tet_background!r}: choose one of {TET_BACKGROUNDS}"
+        )
     if getattr(boundary, "gdim", 2) == 3:
-        plan = _UniformPlan.create(comm, boundary, h, degree, box, relaxation_factor, size_factor)
+        plan = _tet_plan(
+            comm, boundary, h, degree, box, relaxation_factor, size_factor, tet_background,
+            max_cells,
+        )  # fmt: skip
     else:
         plan = _GradedPlan.create(comm, boundary, h, degree, box, relaxation_factor, size_factor)
     timings["sizing"] += time.perf_counter() - t
@@ -554,6 +583,44 @@ class _GradedPlan(_Plan):
         self.field = self.field.refined(places, 0.5 * self.field(places))
 
 
+TET_BACKGROUNDS = ("auto", "graded", "a15")
+"""Backgrounds of :func:`mesh_domain` for surfaces (``tet_background``)."""
+
+AUTO_RATIO = 0.5
+"""``tet_background="auto"`` takes the graded octree when it has fewer than this many times
+the tetrahedra of the uniform A15 background (whose angles are better: A15 where it costs
+at most twice as much)."""
+
+
+def _tet_plan(
+    comm: MPI.Comm,
+    boundary: Boundary,
+    h: float,
+    degree: int,
+    box: npt.ArrayLike | None,
+    relaxation_factor: float,
+    size_factor: float | None,
+    kind: str,
+    max_cells: float,
+) -> _Plan:
+    """The background plan of a surface: graded, A15, or (auto) the graded octree where it
+    has fewer than :data:`AUTO_RATIO` times the tetrahedra of the A15 background (counted
+    on the octree itself, built once, unless either is estimated above ``max_cells``: then
+    the smaller estimate, which :meth:`_Plan.check_size` refuses)."""
+    args = (comm, boundary, h, degree, box, relaxation_factor, size_factor)
+    if kind == "a15":
+        return _UniformPlan.create(*args)
+    graded = _GradedTetPlan.create(*args, max_cells)
+    if kind == "graded":
+        return graded
+    uniform = _UniformPlan.from_graded(graded, boundary, box, relaxation_factor)
+    if graded.top <= graded.base * (1 + 1e-9):  # one level: the same size everywhere
+        return uniform
+    if max(graded.estimate(), uniform.estimate()) > max_cells:
+        return graded if graded.estimate() < uniform.estimate() else uniform
+    return graded if graded.count(comm) < AUTO_RATIO * uniform.count() else uniform
+
+
 class _UniformPlan(_Plan):
     """Tetrahedra: a uniform A15 background (acute, every dihedral angle in [53, 79]
     degrees) of the smallest target size near Gamma, halved where a check fails."""
@@ -589,6 +656,25 @@ class _UniformPlan(_Plan):
         box_arr, size, points, feature, rho = _on_root(comm, sizing)
         return cls(box_arr, size, points, feature, rho)
 
+    @classmethod
+    def from_graded(
+        cls,
+        plan: _GradedTetPlan,
+        boundary: Boundary,
+        box: npt.ArrayLike | None,
+        relaxation_factor: float,
+    ) -> _UniformPlan:
+        """The uniform A15 plan of the smallest target size of ``plan``'s sizing."""
+        size = plan.smallest
+        box_arr = _checked_box(boundary, plan.points, size, box, relaxation_factor)
+        return cls(box_arr, size, plan.points, plan.feature, plan.rho)
+
+    def count(self) -> int:
+        """Tetrahedra of the background."""
+        from .background_tet import A15_TETS, _a15_layout
+
+        return len(A15_TETS) * int(np.prod(_a15_layout(self.box, self.size).n))
+
     def sizes(self) -> Float:
         return np.full(len(self.points), self.size)
 
@@ -603,6 +689,244 @@ class _UniformPlan(_Plan):
 
     def refine(self, places: Float) -> None:
         self.size *= 0.5
+
+
+class _GradedTetPlan(_Plan):
+    """Tetrahedra: a graded BCC octree background
+    (:func:`~dolfinx_universal.graded_tet.graded_tet_mesh`), uniform in a band around every
+    component of Gamma (``relaxation_factor + 2`` sizes deep on the domain's side,
+    :data:`OUTER_BAND` on the other), growing by :data:`TET_GRADATION` per unit length beyond.
+
+    Each component ``c`` of Gamma gets one size ``s_c``: the smallest target size on it
+    (feature size over ``c``), rounded down to a level ``base 2^k`` (:func:`_levels`), and
+    lowered further while another component's field reaches below it inside its band. So
+    no level change of the octree lies in a band: the cut and relaxed tetrahedra are BCC ones
+    (dihedral angles 60 and 90 degrees), never the half pyramids of the level changes (120,
+    and moved by the relaxation they get worse: 29.6-129.7 degrees on a sphere of radius 0.25
+    in one of radius 1 when a finer band reached into the coarser one's). A size that
+    changes along one component would put level changes across Gamma: the component takes
+    its smallest. Where a check fails, the sizes of the components near the places are
+    halved."""
+
+    local_size = True
+
+    def __init__(
+        self,
+        box: Float,
+        points: Float,
+        feature: Float,
+        rho: Float,
+        normals: Float,
+        labels: npt.NDArray[np.intp],
+        sizes: Float,
+        spacing: float,
+        areas: Float,
+        h: float,
+        band: float,
+        gradation: float,
+    ):
+        self.box, self.points, self.feature, self.rho = box, points, feature, rho
+        self.normals = normals
+        self.labels, self.spacing, self.areas, self.h = labels, spacing, areas, h
+        self.band, self.gradation = band, gradation
+        self.component_sizes = sizes
+        self.smallest = float(sizes.min())  # the smallest target size (before the levels)
+        self.sources: list[tuple[Float, Float, float]] = []  # per component: points,
+        # normals (out of the domain) and the distance margin (the points' spacing)
+        self.max_cells = 5e6  # no dense samples for a background estimated above this
+        self._tree: tuple[object, object] | None = None  # octree and leaves, once built
+        self.boundary: Boundary | None = None
+        self.comm: MPI.Comm | None = None
+
+    @property
+    def base(self) -> float:
+        return float(self.component_sizes.min())
+
+    @property
+    def top(self) -> float:
+        return self.base * 2.0 ** math.floor(math.log2(self.h / self.base) + 1e-9)
+
+    @classmethod
+    def create(
+        cls,
+        comm: MPI.Comm,
+        boundary: Boundary,
+        h: float,
+        degree: int,
+        box: npt.ArrayLike | None,
+        relaxation_factor: float,
+        size_factor: float | None,
+        max_cells: float = 5e6,
+        gradation: float | None = None,
+    ) -> _GradedTetPlan:
+        g = TET_GRADATION if gradation is None else float(gradation)
+
+        def sizing() -> _GradedTetPlan:
+            from .sizing_3d import _area, _components, surface_feature_size
+
+            check_components(boundary)
+            sf = surface_feature_size(boundary, 0.25 * h)
+            target = target_sizes(sf.feature, h, degree, size_factor)
+            comps = _components(boundary)
+            sizes = np.array([target[sf.labels == k].min() for k in range(len(comps))])
+            areas = np.array([_area(c) for c in comps])
+            rho = np.full(len(sf.points), float(boundary.min_radius_of_curvature()))
+            band = relaxation_factor + 2.0
+            plan = cls(
+                np.zeros((2, 3)), sf.points, sf.feature, rho, sf.normals, sf.labels,
+                _levels(sizes, areas, band, g), float(sf.spacing), areas, h, band, g,
+            )  # fmt: skip
+            plan.smallest, plan.max_cells = float(sizes.min()), float(max_cells)
+            plan._settle(boundary)
+            plan.box = _checked_box(
+                boundary, sf.points, float(plan.component_sizes.max()), box, relaxation_factor
+            )
+            return plan
+
+        plan = _on_root(comm, sizing)
+        plan.boundary, plan.comm = boundary, comm
+        return plan
+
+    def __getstate__(self) -> dict[str, object]:
+        return {**self.__dict__, "boundary": None, "comm": None, "_tree": None}
+
+    def _settle(self, boundary: Boundary) -> None:
+        """Sample each component about one size apart and lower each component's size to
+        what the other components' fields reach in its band (until no component changes):
+        no level change of the octree in any component's band."""
+        from .sizing_3d import _components
+
+        comps = _components(boundary)
+        comps_i = range(len(comps))
+        feature = [
+            (self.points[self.labels == k], self.normals[self.labels == k], self.spacing)
+            for k in comps_i
+        ]
+        self.sources = list(feature)
+        todo = set(comps_i)
+        while todo:
+            if self._near_cells(np.minimum(self.component_sizes, self.spacing)) > self.max_cells:
+                self.sources = feature  # refused by check_size anyway: no millions of samples
+                return
+            for k in sorted(todo):
+                s = float(self.component_sizes[k])
+                if s < self.spacing:  # denser than the feature samples
+                    n = max(int(math.ceil(self.areas[k] / s**2)), 4)
+                    pts = np.asarray(comps[k].sample(n), dtype=np.float64).reshape(-1, 3)
+                    normals = np.asarray(boundary.normal(pts), dtype=np.float64).reshape(-1, 3)
+                    normals /= np.linalg.norm(normals, axis=1)[:, None]
+                    self.sources[k] = (pts, normals, s)
+            todo = set()
+            if len(comps) == 1:
+                break
+            for k in range(len(comps)):
+                others = [j for j in range(len(comps)) if j != k]
+                h = self._field(others)(self._band_points(k)).min()
+                s = float(_round_down(np.array([h]), self.base)[0])
+                if s < self.component_sizes[k]:
+                    self.component_sizes[k] = s
+                    todo.add(k)
+
+    def _band_points(self, k: int) -> Float:
+        """Points across the band of component ``k``: its sources moved along the normal,
+        ``band`` sizes into the domain and ``OUTER_BAND`` sizes out of it (9 steps)."""
+        pts, n, margin = self.sources[k]
+        s = float(self.component_sizes[k])
+        t = np.linspace(-(self.band * s + margin), OUTER_BAND * s + margin, 9)
+        return (pts[None] + t[:, None, None] * n[None]).reshape(-1, 3)
+
+    def _field(self, components: list[int]) -> BandSizeField:
+        src = [self.sources[k] for k in components]
+        sizes = [np.full(len(p), self.component_sizes[k]) for (p, _, _), k in zip(src, components)]
+        return BandSizeField(
+            np.concatenate([p for p, _, _ in src]), np.concatenate(sizes), self.top, self.band,
+            self.gradation, np.concatenate([np.full(len(p), m) for p, _, m in src]),
+            np.concatenate([n for _, n, _ in src]), OUTER_BAND,
+        )  # fmt: skip
+
+    def field(self) -> BandSizeField:
+        """The target size of the octree."""
+        return self._field(list(range(len(self.sources))))
+
+    def sizes(self) -> Float:
+        return self.component_sizes[self.labels]
+
+    def _near_cells(self, margins: Float) -> float:
+        """Estimated tetrahedra near Gamma. BCC: 12 per cube of side ``s``; per unit area of
+        a component the band holds ``w / s^3`` cubes (``w`` its width) and the graded shells
+        beyond it about
+        ``1 / (g s^2)`` (two sides); twice that for the leaves straddling the band's edges
+        and the balance (measured: 1.6 times on a sphere with a small body)."""
+        s = self.component_sizes
+        w = (self.band + OUTER_BAND) * s + 2.0 * margins
+        return float(24.0 * np.sum(self.areas * (w / s**3 + 1.0 / (self.gradation * s**2))))
+
+    def estimate(self) -> float:
+        far = 12.0 * np.prod(self.box[1] - self.box[0]) / self.top**3
+        return self._near_cells(np.array([m for _, _, m in self.sources])) + float(far)
+
+    def _octree(self, comm: MPI.Comm) -> tuple[Any, Any]:
+        """The octree of the current sizes and its leaves (built once per sizes)."""
+        from . import graded_tet
+
+        if self._tree is None:
+            t = graded_tet._octree(self.box, self.field(), self.top, self.base, comm)
+            self._tree = (t, graded_tet._classify(t))
+        return self._tree
+
+    def count(self, comm: MPI.Comm) -> int:
+        """Tetrahedra of the background (collective)."""
+        return int(self._octree(comm)[1].weight.sum())
+
+    def background(self, comm: MPI.Comm) -> dmesh.Mesh:
+        from . import graded_tet
+
+        t, leaves = self._octree(comm)
+        return graded_tet._mesh(comm, t, leaves)
+
+    def refine(self, places: Float) -> None:
+        from scipy.spatial import cKDTree
+
+        near = []
+        for k, (pts, _, margin) in enumerate(self.sources):
+            d = cKDTree(pts).query(places)[0]
+            near.append(d - (self.band * self.component_sizes[k] + margin))
+        dist = np.array(near)  # (components, places): <= 0 inside a component's band
+        hit = (dist <= 0).any(axis=1)
+        hit[np.argmin(dist, axis=0)] = True  # and the component nearest to each place
+        self.component_sizes = np.where(hit, 0.5 * self.component_sizes, self.component_sizes)
+        assert self.boundary is not None and self.comm is not None
+        boundary = self.boundary
+
+        def settle() -> tuple[Float, list[tuple[Float, Float, float]]]:
+            self._settle(boundary)
+            return self.component_sizes, self.sources
+
+        self.component_sizes, self.sources = _on_root(self.comm, settle)
+        self._tree = None
+
+
+def _levels(sizes: Float, areas: Float, band: float, gradation: float) -> Float:
+    """Component sizes rounded down to ``base 2^k``, with the finest level ``base`` in
+    ``(min / 2, min]`` chosen among the sizes halved to that range (each component's size is
+    then exactly a level: nothing rounded down by up to a half) to minimise the cells near
+    Gamma, ``sum area (2 band / s + 1 / gradation) / s^2``."""
+    smallest = float(sizes.min())
+    k = np.ceil(np.log2(sizes / smallest) - 1e-9)
+    candidates = np.unique(np.minimum(sizes / 2.0**k, smallest))
+    best, out = np.inf, sizes
+    for base in candidates[::-1]:  # the largest first: ties keep it
+        s = _round_down(sizes, float(base))
+        cost = float(np.sum(areas * (2.0 * band / s + 1.0 / gradation) / s**2))
+        if cost < best * (1 - 1e-9):
+            best, out = cost, s
+    return out
+
+
+def _round_down(sizes: Float, base: float) -> Float:
+    """``sizes`` rounded down to ``base 2^k`` (at least ``base``)."""
+    k = np.floor(np.log2(np.maximum(sizes, base) / base) + 1e-9)
+    return base * 2.0**k
 
 
 def _checked_box(
