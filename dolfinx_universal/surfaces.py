@@ -815,6 +815,12 @@ class ImplicitSurface(Surface):
                 v0 = V[neg, :, 0]
                 side = np.where(_dot2(v0, b[neg]) > 0, -1.0, 1.0)
                 beta[neg] += (side * delta)[:, None] * v0
+            # Stationary already (x - y along grad phi to rounding) where Q is positive
+            # semi-definite: no step. Where the minimum is not isolated (x on the axis of a
+            # torus: a circle of closest points; the centre of a sphere) Q is singular
+            # along the ties and Newton's step there is rounding over 1e-8, which would
+            # drift along them for ever; stopping keeps the start's own tie (deterministic).
+            beta[(np.hypot(b[:, 0], b[:, 1]) <= tol) & ~neg] = 0.0
             nb = np.hypot(beta[:, 0], beta[:, 1])
             with np.errstate(divide="ignore", invalid="ignore"):
                 beta *= np.minimum(1.0, delta / nb)[:, None]

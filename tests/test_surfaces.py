@@ -400,6 +400,33 @@ def test_implicit_torus_against_closed_form() -> None:
     assert cKDTree(y).query(dense_pts)[0].max() < 2.5 * np.sqrt(T.area() / len(y))
 
 
+def test_implicit_ties_on_the_torus_axis() -> None:
+    """Points with a circle of closest points (the axis of the torus) or a sphere of them
+    (the centre of a sphere): one of the ties, valid, the same on every call. The
+    reduced Hessian is singular along the ties; Newton's step there was rounding over
+    1e-8 and drifted along the circle until the iterations ran out (RuntimeError)."""
+    z = np.linspace(-2.0, 2.0, 41)
+    x = np.column_stack([0 * z, 0 * z, z])
+    for R, r, kw in [(1.0, 0.35, {}), (1.0, 0.5, {}), (2.0, 0.3, {"resolution": 48})]:
+        imp, T = _torus_implicit(R, r, **kw), Torus((0, 0, 0), R, r)
+        y = imp.closest_point(x)
+        d, dt = np.linalg.norm(y - x, axis=1), np.linalg.norm(T.closest_point(x) - x, axis=1)
+        np.testing.assert_allclose(d, dt, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(T._lower_bound(y), 0, atol=1e-12)  # on Gamma
+        np.testing.assert_array_equal(imp.closest_point(x), y)  # deterministic
+        phi, yn, n = imp.project_normal(x)
+        np.testing.assert_allclose(np.abs(phi), dt, atol=1e-12)
+        np.testing.assert_allclose(np.cross(x - yn, n), 0, atol=1e-9)  # as _valid
+    S = ImplicitSurface(
+        lambda p: (p * p).sum(axis=1) - 0.49,
+        lambda p: 2 * p,
+        [[-1.0] * 3, [1.0] * 3],
+        resolution=24,
+    )
+    y = S.closest_point(np.zeros((1, 3)))
+    assert np.linalg.norm(y) == pytest.approx(0.7, abs=1e-12)
+
+
 def _quartic(**kw: object) -> ImplicitSurface:
     return ImplicitSurface(
         lambda x: (x**4).sum(axis=1) - 1,
