@@ -1,4 +1,8 @@
-"""Curved universal meshes: the maps G_h, G~_h and their degree-k interpolants I_h, I~_h."""
+"""Curved universal meshes: the maps G_h, G~_h and their degree-k interpolants I_h, I~_h.
+
+The driver :func:`curved_mesh` serves both dimensions; the triangle blend is in this module,
+the tetrahedron blend in :mod:`._curved_tet`, picked by the cell type.
+"""
 
 from __future__ import annotations
 
@@ -15,8 +19,10 @@ import numpy.typing as npt
 from dolfinx import fem
 from dolfinx import mesh as dmesh
 
+from . import _curved_tet
 from .classify import positively_cut
 from .conform import IMMERSED, ConformingMesh
+from .dimensions import cell_kernels
 from .jacobian import jacobian_bounds
 from .validation import Problem, collective_call, raise_collective
 
@@ -38,7 +44,8 @@ MAPS = ("I", "I~", "G", "G~")
 """Map names. ``"I"``/``"G"`` interpolate the exactly conforming blend ``G_h``; ``"I~"``/``"G~"``
 interpolate ``G~_h`` (through the straight mesh). DOLFINx geometry is polynomial, so ``G`` is
 realised as its degree-q interpolant: ``"G"`` with a geometry degree above the space degree is
-the superparametric approximation of ``G_h``; with equal degrees it is ``I_h``."""
+the superparametric approximation of ``G_h``; with equal degrees it is ``I_h``. Triangles and
+tetrahedra alike (the tetrahedron blend: :mod:`dolfinx_universal._curved_tet`)."""
 
 
 @lru_cache(maxsize=16)
@@ -252,22 +259,61 @@ def _cell_nodes(cm: ConformingMesh, degree: int, kind: str) -> Float:
     )
 
 
+def _curved_cells(
+    cm: ConformingMesh, degree: int, kind: str
+) -> tuple[npt.NDArray[np.intp], Callable[[npt.NDArray, Float], Float]]:
+    """The local cells a curved map changes and the map of their nodes, per dimension.
+
+    Triangles: the positively cut ones. Tetrahedra: those with an edge on Gamma_h (a positive
+    face, or only edges of other cells' positive faces), found from the immersed facet tags
+    and the mesh's edges (collective).
+
+    Returns
+    -------
+    cells
+        Indices of the cells to curve ``(k,)``.
+    map
+        ``(cells (k, tdim + 1), y (num_vertices, gdim)) -> nodes (k, ndofs, gdim)``.
+    """
+    closest = cm.boundary.closest_point
+    if cm.mesh.topology.dim == 2:
+        pc = np.flatnonzero(positively_cut(cm.sign, cm.cells))
+
+        def triangles(cells: npt.NDArray, y: Float) -> Float:
+            return map_nodes(cells, y, cm.background_x, cm.sign, degree, kind, closest)
+
+        return pc, triangles
+    face, edges = _curved_tet.gamma_entities(
+        cm.mesh, cm.on_positive_edge, cm.facet_tags.find(IMMERSED)
+    )
+    curved = np.flatnonzero(edges.any(axis=1))
+
+    def tetrahedra(cells: npt.NDArray, y: Float) -> Float:
+        return _curved_tet.map_nodes(
+            cells, y, cm.background_x, face[curved], edges[curved], degree, kind, closest
+        )
+
+    return curved, tetrahedra
+
+
 def jacobian_ratio(
     nodes: Float, degree: int, resolution: int | None = None, *, threshold: float = 0.0
 ) -> Float:
     """Proven lower bound of the ratio ``det J / det J_affine`` over each curved cell.
 
-    ``det J`` of a degree-k triangle is a polynomial of degree ``2(k-1)`` in the reference
-    coordinates; :func:`~dolfinx_universal.jacobian.jacobian_bounds` writes it in the
-    Bernstein basis and subdivides until the bound decides ``threshold`` and lies within
-    5 % (5e-4 near 0) of an attained value (``det J_affine``: the triangle through the
+    ``det J`` of a degree-k triangle (tetrahedron) is a polynomial of degree ``2(k-1)``
+    (``3(k-1)``) in the reference coordinates; :func:`~dolfinx_universal.jacobian.jacobian_bounds`
+    writes it in the Bernstein basis and subdivides until the bound decides ``threshold`` and
+    lies within 5 % (5e-4 near 0) of an attained value (``det J_affine``: the cell through the
     vertex nodes). ``ratio <= threshold`` is therefore a safe failure test: a cell above it
-    is proven valid; an undecided cell (after 8 subdivision levels) stays at or below it.
+    is proven valid; an undecided cell (after 8 subdivision levels, 6 for tetrahedra) stays
+    at or below it.
 
     Parameters
     ----------
     nodes
-        Node coordinates of each cell, ``(m, ndofs, 2)``.
+        Node coordinates of each cell, ``(m, ndofs, 2)`` (triangles) or ``(m, ndofs, 3)``
+        (tetrahedra).
     degree
         Geometry degree.
     resolution
@@ -309,9 +355,11 @@ def curved_mesh(
 ) -> CurvedMesh:
     """Degree-k DOLFINx mesh whose nodes are the images of the Lagrange nodes under a curved map.
 
-    Only positively cut cells are curved (their positive edge follows Gamma through the
-    closest-point projection); every other cell is the affine image of its ``M_h`` vertices.
-    Nodes on Gamma lie exactly on Gamma. Collective.
+    Triangles: only positively cut cells are curved (their positive edge follows Gamma
+    through the closest-point projection). Tetrahedra: the cells with a positive face (it
+    follows Gamma) and those touching Gamma_h by an edge (it follows the curved edge), see
+    :mod:`dolfinx_universal._curved_tet`. Every other cell is the affine image of its ``M_h``
+    vertices. Nodes on Gamma lie exactly on Gamma. Collective.
 
     Parameters
     ----------
@@ -340,29 +388,23 @@ def curved_mesh(
         raise ValueError(f"unknown map {map!r}: choose one of {MAPS}")
     if int(degree) != degree or degree < 1:
         raise ValueError(f"geometry degree must be an integer >= 1, got {degree}")
-    if cm.mesh.topology.dim != 2:
-        raise ValueError(
-            "curved tetrahedra (degree > 1) are not available yet: the straight conforming "
-            "mesh is cm.mesh"
-        )
+    tdim = cm.mesh.topology.dim
+    kernels = cell_kernels(tdim)
     kind = "G" if map in ("I", "G") else "G~"
-    ce = fem.coordinate_element(dmesh.CellType.triangle, degree, basix.LagrangeVariant.gll_warped)
-    # The interpolated geometry is the affine image of every cell: only the positively cut
-    # cells change (their straight edges stay affine, so shared nodes agree).
+    ce = fem.coordinate_element(kernels.cell_type, degree, basix.LagrangeVariant.gll_warped)
+    # The interpolated geometry is the affine image of every cell: only the curved cells
+    # change (affine on their straight entities, so shared nodes agree).
     msh = fem.interpolate_geometry(cm.mesh, ce)
     cells = cm.cells
-    pc = np.flatnonzero(positively_cut(cm.sign, cells))
+    pc, cell_map = _curved_cells(cm, degree, kind)
     dofmap = msh.geometry.dofmaps[0]
-    # Vertex positions of the cut cells only (the nodes of a node shared by a cut cell and
-    # an affine one agree up to rounding: the curved map is affine on the other edges).
-    corners = cm.mesh.geometry.x[cm.mesh.geometry.dofmaps[0][pc], :2]  # (cut cells, 3, 2)
-    y = np.zeros((len(cm.sign), 2))
+    # Vertex positions of the curved cells only (a node shared by a curved cell and an
+    # affine one agrees up to rounding: the curved map is affine on the straight entities).
+    corners = cm.mesh.geometry.x[cm.mesh.geometry.dofmaps[0][pc], :tdim]  # (k, tdim + 1, tdim)
+    y = np.zeros((len(cm.sign), tdim))
     y[cells[pc]] = corners
-    nodes = collective_call(
-        msh.comm, "the curved map", map_nodes, cells[pc], y, cm.background_x, cm.sign,
-        degree, kind, cm.boundary.closest_point,
-    )  # fmt: skip
-    msh.geometry.x[dofmap[pc].ravel(), :2] = nodes.reshape(-1, 2)
+    nodes = collective_call(msh.comm, "the curved map", cell_map, cells[pc], y)
+    msh.geometry.x[dofmap[pc].ravel(), :tdim] = nodes.reshape(-1, tdim)
 
     ratio = (
         jacobian_ratio(nodes, degree, threshold=min_ratio) if degree > 1 and len(pc) else np.ones(0)
@@ -372,8 +414,9 @@ def curved_mesh(
     if bad.any():
         problems.append(
             Problem(
-                "{count} curved triangles are not proven valid (det J / det J_straight >= "
-                f"{min_ratio:g} fails) near " + "{where}: the background is too coarse for the "
+                f"{{count}} curved {kernels.plural} are not proven valid (det J / "
+                f"det J_straight >= {min_ratio:g} fails) near " + "{where}: the background is "
+                "too coarse for the "
                 "boundary's curvature there; refine near those points",
                 nodes[bad].mean(axis=1),
                 int(bad.sum()),
@@ -381,7 +424,7 @@ def curved_mesh(
         )
     raise_collective(msh.comm, problems)
     local_min = float(ratio.min()) if len(ratio) else 1.0
-    tags = dmesh.meshtags(msh, 1, cm.facet_tags.indices, cm.facet_tags.values)
+    tags = dmesh.meshtags(msh, tdim - 1, cm.facet_tags.indices, cm.facet_tags.values)
     return CurvedMesh(
         mesh=msh,
         facet_tags=tags,

@@ -1,4 +1,5 @@
-"""Proven bounds of the Jacobian determinant of curved triangles by Bernstein–Bézier subdivision."""
+"""Proven bounds of the Jacobian determinant of curved triangles and tetrahedra by Bernstein–Bézier
+subdivision (the tetrahedron pieces are in :mod:`._bernstein_tet`)."""
 
 from __future__ import annotations
 
@@ -8,6 +9,8 @@ from math import factorial
 import basix
 import numpy as np
 import numpy.typing as npt
+
+from . import _bernstein_tet as _tet
 
 __all__ = [
     "bernstein_basis",
@@ -194,17 +197,18 @@ def jacobian_bounds(
     degree: int,
     *,
     threshold: float = 0.0,
-    max_depth: int = 8,
+    max_depth: int | None = None,
     rtol: float = 0.05,
 ) -> tuple[Float, Float]:
     """Proven lower bound and an attained upper bound of ``min det J / det J_affine`` per cell.
 
-    ``det J_affine`` is the determinant of the affine triangle through the three vertex nodes.
-    ``det J`` is written in the Bernstein basis of degree ``2(q-1)`` on the reference
-    triangle (or on sub-triangles of it): the smallest coefficient bounds ``det J`` from
-    below there, and values of ``det J`` at points (the control points, corners included)
-    bound its minimum from above (Johnen, Remacle & Geuzaine 2013). Sub-triangles (leaves)
-    are split at their edge midpoints into four, all cells at once, while
+    ``det J_affine`` is the determinant of the affine cell through the vertex nodes.
+    ``det J`` is written in the Bernstein basis of degree ``tdim (q-1)`` on the reference
+    triangle or tetrahedron (or on sub-cells of it): the smallest coefficient bounds ``det J``
+    from below there, and values of ``det J`` at points (the control points, corners
+    included) bound its minimum from above (Johnen, Remacle & Geuzaine 2013). Sub-cells
+    (leaves) are split at their edge midpoints into four triangles or eight tetrahedra (red
+    refinement), all cells at once, while
 
     * the decision is open: ``lower <= threshold < upper``: every leaf whose lower bound is
       at or below ``threshold`` is split; or
@@ -218,20 +222,22 @@ def jacobian_bounds(
     level on the undecided leaves only; ``rtol=np.inf`` decides ``threshold`` and nothing more.
 
     The bounds are exact up to rounding (about ``1e-13`` relative to the largest ratio).
-    Cells whose vertices are collinear (``det J_affine = 0``) or whose nodes are not finite
-    get ``-inf`` for both.
+    Cells whose vertices are collinear or coplanar (``det J_affine = 0``) or whose nodes are
+    not finite get ``-inf`` for both.
 
     Parameters
     ----------
     nodes
-        Node coordinates of each cell, ``(m, ndofs, 2)``, in DOLFINx's node order of the
-        GLL-warped Lagrange element of degree ``degree``.
+        Node coordinates of each cell, ``(m, ndofs, 2)`` for triangles, ``(m, ndofs, 3)`` for
+        tetrahedra, in DOLFINx's node order of the GLL-warped Lagrange element of degree
+        ``degree``.
     degree
         Geometry degree ``q >= 1`` (``q = 1``: ``det J`` is constant, both bounds are 1).
     threshold
         The ratio to decide (default 0: inversion).
     max_depth
-        Largest number of subdivision levels (leaves down to ``4^-max_depth`` of the area).
+        Largest number of subdivision levels (leaves down to ``4^-max_depth`` of the area,
+        ``8^-max_depth`` of the volume); default 8 for triangles, 6 for tetrahedra.
     rtol
         Relative gap between the bounds at which a cell is not refined further for
         tightness (the decision at ``threshold`` is refined regardless; ``np.inf``: never).
@@ -245,13 +251,22 @@ def jacobian_bounds(
         ``lower <= min <= upper``.
     """
     nodes = np.asarray(nodes, dtype=np.float64)
-    order = 2 * (degree - 1)
     m = len(nodes)
-    p = nodes[:, :3]
-    det0 = (p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 2, 0] - p[:, 0, 0]) * (
-        p[:, 1, 1] - p[:, 0, 1]
-    )
-    det = _determinant(nodes, _lattice_derivatives(degree))  # (m, nb) at the control points
+    if nodes.ndim == 3 and nodes.shape[2] == 3:  # tetrahedra
+        order = 3 * (degree - 1)
+        det0 = _tet.affine_determinant(nodes)
+        det = _tet.determinant(nodes, _tet.lattice_derivatives(degree))
+        inverse, split, nchildren = _tet.inverse_collocation(order), _tet.subdivision(order), 8
+        max_depth = 6 if max_depth is None else max_depth
+    else:
+        order = 2 * (degree - 1)
+        p = nodes[:, :3]
+        det0 = (p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 2, 0] - p[:, 0, 0]) * (
+            p[:, 1, 1] - p[:, 0, 1]
+        )
+        det = _determinant(nodes, _lattice_derivatives(degree))  # (m, nb) at the control points
+        inverse, split, nchildren = _inverse_collocation(order), _subdivision(order), 4
+        max_depth = 8 if max_depth is None else max_depth
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = det / det0[:, None]
     bad = (det0 == 0) | ~np.isfinite(ratio).all(axis=1)
@@ -260,8 +275,7 @@ def jacobian_bounds(
     upper = ratio.min(axis=1)
     lower = np.full(m, np.inf)
     cell = np.arange(m)  # the cell of each leaf
-    coef = ratio @ _inverse_collocation(order).T  # (leaves, nb)
-    split = _subdivision(order)
+    coef = ratio @ inverse.T  # (leaves, nb)
     nb = split.shape[0]
     for depth in range(max_depth + 1):
         low = coef.min(axis=1)
@@ -274,10 +288,12 @@ def jacobian_bounds(
             np.minimum.at(lower, cell[refine], low[refine])
             break
         cell, coef = cell[refine], coef[refine]
-        children = (coef @ split).reshape(len(cell), 4, 2, nb)  # (leaves, child, value/coef, nb)
+        children = (coef @ split).reshape(
+            len(cell), nchildren, 2, nb
+        )  # (leaves, child, value/coef, nb)
         np.minimum.at(upper, cell, children[:, :, 0].min(axis=(1, 2)))
         coef = children[:, :, 1].reshape(-1, nb)
-        cell = np.repeat(cell, 4)
+        cell = np.repeat(cell, nchildren)
     lower = np.minimum(lower, upper)  # the corner coefficients are values: only rounding
     lower[bad] = upper[bad] = -np.inf
     return lower, upper

@@ -211,9 +211,3 @@ def test_mesh_domain_refuses_curved_tetrahedra_and_tiny_gaps():
 def test_unresolved_features_are_refused(surface, message):
     with pytest.raises(du.MeshingError, match=message):
         du.conform(a15_mesh(comm, BOX, 0.25), surface)
-
-
-def test_curved_tetrahedra_not_yet():
-    cm = du.conform(a15_mesh(comm, BOX, 0.25), du.Sphere(C, 1.0))
-    with pytest.raises(ValueError, match="curved tetrahedra"):
-        du.curved_mesh(cm, 2)

@@ -5,6 +5,8 @@ import time
 import numpy as np
 import pytest
 
+from dolfinx_universal import _bernstein_tet as _tet
+from dolfinx_universal._curved_tet import reference_nodes as tet_reference_nodes_lam
 from dolfinx_universal.curved import jacobian_ratio, reference_nodes
 from dolfinx_universal.jacobian import (
     _subdivision,
@@ -195,4 +197,131 @@ def test_many_cells(degree):
     t = time.perf_counter()
     lower, upper = jacobian_bounds(nodes, degree)
     print(f"q={degree}: 10000 cells in {1e3 * (time.perf_counter() - t):.1f} ms")
+    assert (lower <= upper).all() and (lower > 0).mean() > 0.9
+
+
+# Tetrahedra: det J of degree 3(q-1), red refinement (eight children) of the undecided leaves.
+
+TET = np.vstack([np.zeros(3), np.eye(3)])
+
+
+def tet_reference_nodes(degree: int) -> np.ndarray:
+    """Barycentric coordinates of the nodes, ``(ndofs, 4)`` (``@ TET``: reference points)."""
+    return np.asarray(tet_reference_nodes_lam(degree))
+
+
+def tet_lattice(n: int) -> np.ndarray:
+    i, j, k = np.meshgrid(*[np.arange(n + 1)] * 3, indexing="ij")
+    keep = i + j + k <= n
+    return np.column_stack([i[keep], j[keep], k[keep]]) / n
+
+
+def tet_sampled_min(nodes: np.ndarray, degree: int, n: int) -> np.ndarray:
+    det = _tet.determinant(nodes, _tet.lagrange(degree).tabulate(1, tet_lattice(n))[1:, :, :, 0])
+    return (det / _tet.affine_determinant(nodes)[:, None]).min(axis=1)
+
+
+def random_tets(degree: int, m: int, rng: np.random.Generator, amp: float) -> np.ndarray:
+    nodes = tet_reference_nodes(degree) @ TET
+    return nodes + amp * rng.standard_normal((m,) + nodes.shape)
+
+
+def random_tet_points(rng: np.random.Generator, n: int) -> np.ndarray:
+    p = rng.random((8 * n, 3))
+    return p[p.sum(axis=1) <= 1.0][:n]
+
+
+@pytest.mark.parametrize("degree", [2, 3, 4])
+def test_tet_bernstein_coefficients_reproduce_det(degree):
+    rng = np.random.default_rng(degree)
+    nodes = random_tets(degree, 30, rng, 0.05)
+    order = 3 * (degree - 1)
+    det = _tet.determinant(nodes, _tet.lattice_derivatives(degree))
+    c = det @ _tet.inverse_collocation(order).T
+    assert c.shape == (30, (order + 1) * (order + 2) * (order + 3) // 6)
+    pts = random_tet_points(rng, 100)
+    exact = _tet.determinant(nodes, _tet.lagrange(degree).tabulate(1, pts)[1:, :, :, 0])
+    # collocation matrices of condition 7, 92, 1521 (orders 3, 6, 9): rounding ~1e-13
+    assert (
+        np.abs(c @ _tet.bernstein_basis(order, pts).T - exact).max() < 1e-11 * np.abs(exact).max()
+    )
+
+
+@pytest.mark.parametrize("order", [0, 1, 3, 6, 9])
+def test_tet_subdivision_is_exact(order):
+    """Child coefficients reproduce the parent on each of the eight children (which tile the
+    reference tetrahedron); the operators are convex combinations."""
+    rng = np.random.default_rng(order)
+    nb = len(_tet.bernstein_indices(order))
+    c = rng.standard_normal((3, nb))
+    split = _tet.subdivision(order).reshape(nb, 8, 2, nb)
+    ref = random_tet_points(rng, 20)
+    lam = np.column_stack([1.0 - ref.sum(axis=1), ref])
+    volumes = []
+    for k, child in enumerate(_tet.CHILDREN):
+        want = c @ _tet.bernstein_basis(order, lam @ child).T
+        got = (c @ split[:, k, 1]) @ _tet.bernstein_basis(order, ref).T
+        assert np.abs(got - want).max() < 1e-12
+        ctrl = _tet.bernstein_indices(order) / max(order, 1) @ child
+        assert np.allclose(c @ split[:, k, 0], c @ _tet.bernstein_basis(order, ctrl).T, atol=1e-12)
+        volumes.append(abs(np.linalg.det(child[1:] - child[0])))
+    assert np.allclose(volumes, 1 / 8)
+    assert split[:, :, 1].min() >= 0.0
+    assert np.abs(split[:, :, 1].sum(axis=0) - 1.0).max() < 1e-15
+
+
+@pytest.mark.parametrize("degree", [2, 3, 4])
+def test_tet_bounds_bracket_the_minimum(degree):
+    rng = np.random.default_rng(20 + degree)
+    nodes = np.concatenate([random_tets(degree, 40, rng, a) for a in (0.02, 0.06, 0.12)])
+    lower, upper = jacobian_bounds(nodes, degree)
+    dense = tet_sampled_min(nodes, degree, 36)
+    assert (lower <= dense + 1e-11).all()
+    assert (lower <= upper).all()
+    assert (upper - lower <= 0.05 * np.maximum(np.abs(upper), 0.01) + 1e-11).all()
+    assert (lower > 0).any() and (upper <= 0).any()  # both kinds of cell are in the sample
+    # every evaluated point lies on the lattice of order * 2^depth subdivisions
+    lower, upper = jacobian_bounds(nodes, degree, max_depth=2)
+    dense = tet_sampled_min(nodes, degree, 3 * (degree - 1) * 4)
+    assert (lower <= dense + 1e-11).all() and (dense <= upper + 1e-11).all()
+
+
+def test_tet_inverted_and_nearly_degenerate():
+    nodes = tet_reference_nodes(2) @ TET
+    mid = 4 + 5  # the mid-node of edge 5 (v0 - v1), at (1/2, 0, 0)
+    for push, valid in ((0.1, True), (0.2, False)):  # det J = 1 - 8 push at v1
+        cell = nodes.copy()
+        cell[mid] += push * np.array([0.0, 1.0, 1.0])  # into the cell
+        lower, upper = jacobian_bounds(cell[None], 2)
+        dense = tet_sampled_min(cell[None], 2, 60)[0]
+        assert lower[0] <= dense <= upper[0] + 1e-12
+        assert (lower[0] > 0) == valid and (upper[0] > 0) == valid
+        assert jacobian_ratio(cell[None], 2)[0] == pytest.approx(lower[0])
+
+
+def test_tet_affine_degenerate_and_empty_cells():
+    for degree in (1, 2, 3):
+        nodes = tet_reference_nodes(degree) @ (TET * [2.0, 0.5, 1.5])
+        lower, upper = jacobian_bounds(nodes[None], degree)
+        assert lower == pytest.approx([1.0]) and upper == pytest.approx([1.0])
+        flat = tet_reference_nodes(degree) @ (TET * [1.0, 1.0, 0.0])
+        lower, upper = jacobian_bounds(flat[None], degree)
+        assert lower[0] == upper[0] == -np.inf
+        empty = np.zeros((0, len(nodes), 3))
+        assert [b.shape for b in jacobian_bounds(empty, degree)] == [(0,), (0,)]
+
+
+@pytest.mark.parametrize("degree", [2, 3, 4])
+def test_tet_many_cells_adaptive(degree):
+    """5000 mildly curved tetrahedra: only the leaves the coefficients leave undecided or
+    loose are split (prints the time; no timed assert)."""
+    rng = np.random.default_rng(degree)
+    nodes = tet_reference_nodes(degree) @ TET
+    bubble = np.arange(len(nodes)) >= 4
+    amp = 0.04 / degree**2  # node spacing 1 / q, derivatives of the bubbles ~ q^2
+    nodes = nodes + amp * rng.standard_normal((5000,) + nodes.shape) * bubble[:, None]
+    jacobian_bounds(nodes[:10], degree)
+    t = time.perf_counter()
+    lower, upper = jacobian_bounds(nodes, degree)
+    print(f"q={degree}: 5000 tetrahedra in {1e3 * (time.perf_counter() - t):.1f} ms")
     assert (lower <= upper).all() and (lower > 0).mean() > 0.9

@@ -1,0 +1,214 @@
+"""Bernstein–Bézier pieces of the Jacobian bounds for tetrahedra (the 3D part of :mod:`.jacobian`).
+
+``det J`` of a degree-q tetrahedron map is a polynomial of degree ``3(q - 1)`` on the
+reference tetrahedron. Its Bernstein coefficients bound it from below; red refinement (eight
+children: four corner tetrahedra and four around the diagonal ``M02 - M13`` of the inner
+octahedron) of the leaves whose bound is inconclusive tightens the bound (Johnen, Remacle &
+Geuzaine 2013). The child coefficients are blossoms of the parent's at the child's vertices
+(de Casteljau steps with weights 0, 1/2, 1).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from math import factorial
+
+import basix
+import numpy as np
+import numpy.typing as npt
+
+__all__ = [
+    "CHILDREN",
+    "bernstein_basis",
+    "bernstein_indices",
+    "control_points",
+    "determinant",
+    "inverse_collocation",
+    "lagrange",
+    "lattice_derivatives",
+    "subdivision",
+]
+
+Float = npt.NDArray[np.float64]
+Int = npt.NDArray[np.int64]
+
+_P = np.eye(4)[:, 1:]  # reference vertices P0..P3
+_M = {(i, j): 0.5 * (_P[i] + _P[j]) for i in range(4) for j in range(i + 1, 4)}
+CHILDREN = np.array(
+    [
+        [_P[0], _M[0, 1], _M[0, 2], _M[0, 3]],
+        [_M[0, 1], _P[1], _M[1, 2], _M[1, 3]],
+        [_M[0, 2], _M[1, 2], _P[2], _M[2, 3]],
+        [_M[0, 3], _M[1, 3], _M[2, 3], _P[3]],
+        [_M[0, 2], _M[1, 3], _M[0, 1], _M[0, 3]],
+        [_M[0, 2], _M[1, 3], _M[0, 3], _M[2, 3]],
+        [_M[0, 2], _M[1, 3], _M[2, 3], _M[1, 2]],
+        [_M[0, 2], _M[1, 3], _M[1, 2], _M[0, 1]],
+    ]
+)
+"""Red refinement of the reference tetrahedron: vertices of the eight children ``(8, 4, 3)``,
+each of volume 1/48."""
+
+
+def _readonly(a: np.ndarray) -> np.ndarray:
+    a.setflags(write=False)
+    return a
+
+
+@lru_cache(maxsize=16)
+def lagrange(degree: int) -> basix.finite_element.FiniteElement:
+    """The degree-q GLL-warped Lagrange tetrahedron of DOLFINx's curved coordinate maps."""
+    return basix.create_element(
+        basix.ElementFamily.P, basix.CellType.tetrahedron, degree, basix.LagrangeVariant.gll_warped
+    )
+
+
+@lru_cache(maxsize=16)
+def bernstein_indices(order: int) -> Int:
+    """Multi-indices ``(a0, a1, a2, a3)``, sum ``order``, of the Bernstein basis.
+
+    Row ``b`` is ``B_b = order! / (a0! a1! a2! a3!) l0^a0 l1^a1 l2^a2 l3^a3`` in the
+    barycentric coordinates ``(1 - X - Y - Z, X, Y, Z)``; its control point is
+    ``(a1, a2, a3) / order``.
+
+    Returns
+    -------
+    The indices, ``(nb, 4)`` with ``nb = (order + 1)(order + 2)(order + 3) / 6`` (read-only).
+    """
+    rows = [
+        (order - i - j - k, i, j, k)
+        for i in range(order + 1)
+        for j in range(order + 1 - i)
+        for k in range(order + 1 - i - j)
+    ]
+    return _readonly(np.array(rows, dtype=np.int64).reshape(-1, 4))
+
+
+def control_points(order: int) -> Float:
+    """Reference coordinates of the Bernstein control points, ``(nb, 3)``."""
+    return bernstein_indices(order)[:, 1:] / max(order, 1)
+
+
+def bernstein_basis(order: int, points: Float) -> Float:
+    """The Bernstein basis of degree ``order`` on the reference tetrahedron at points.
+
+    Parameters
+    ----------
+    order
+        Polynomial degree ``d >= 0``.
+    points
+        Reference coordinates ``(p, 3)``.
+
+    Returns
+    -------
+    ``B[p, b]``, ``(p, nb)``, columns in the order of :func:`bernstein_indices`.
+    """
+    points = np.asarray(points, dtype=np.float64)
+    alpha = bernstein_indices(order)
+    lam = np.column_stack([1.0 - points.sum(axis=1), points])
+    mult = np.array([factorial(order) / np.prod([factorial(a) for a in r]) for r in alpha])
+    return mult * np.prod(lam[:, None, :] ** alpha[None, :, :], axis=2)
+
+
+@lru_cache(maxsize=16)
+def inverse_collocation(order: int) -> Float:
+    """Inverse of the Bernstein collocation matrix at the control points, ``(nb, nb)``."""
+    return _readonly(np.linalg.inv(bernstein_basis(order, control_points(order))))
+
+
+@lru_cache(maxsize=16)
+def _raise_index(order: int) -> Int:
+    """``idx[i, r]``: the row of ``a + e_i`` among the degree-``order`` indices for row ``r``
+    of the degree ``order - 1`` indices, ``(4, nb(order - 1))``."""
+    index = {tuple(a): k for k, a in enumerate(bernstein_indices(order).tolist())}
+    lower = bernstein_indices(order - 1)
+    return np.array(
+        [[index[tuple(a + np.eye(4, dtype=np.int64)[i])] for a in lower] for i in range(4)]
+    )
+
+
+def _child_operator(order: int, w: Float) -> Float:
+    """Bernstein coefficients on the child with barycentric vertices ``w (4, 4)`` as a linear
+    map of the parent's: ``(nb, nb)``.
+
+    The coefficient of index ``a`` is the blossom at ``a0`` copies of ``w0``, ..., ``a3`` of
+    ``w3``: de Casteljau steps, shared between indices through the prefixes
+    ``(a0), (a0, a1), (a0, a1, a2)``; the last ``a3`` steps at ``w3`` evaluate a polynomial
+    of degree ``a3`` at ``w3``.
+    """
+    nb = len(bernstein_indices(order))
+
+    def step(t: Float, r: int, point: Float) -> Float:  # degree r -> r - 1
+        idx = _raise_index(r)
+        return sum(point[i] * t[idx[i]] for i in range(4))
+
+    out = np.zeros((nb, nb))
+    row = {tuple(a): k for k, a in enumerate(bernstein_indices(order).tolist())}
+    t0 = np.eye(nb)
+    for a0 in range(order + 1):
+        t1 = t0
+        for a1 in range(order + 1 - a0):
+            t2 = t1
+            for a2 in range(order + 1 - a0 - a1):
+                a3 = order - a0 - a1 - a2
+                basis = bernstein_basis(a3, w[3][None, 1:])[0]
+                out[row[(a0, a1, a2, a3)]] = basis @ t2
+                if a3 > 0:
+                    t2 = step(t2, a3, w[2])
+            rest = order - a0 - a1
+            if rest > 0:
+                t1 = step(t1, rest, w[1])
+        rest = order - a0
+        if rest > 0:
+            t0 = step(t0, rest, w[0])
+    return out
+
+
+@lru_cache(maxsize=8)
+def subdivision(order: int) -> Float:
+    """Red subdivision of Bernstein coefficients of degree ``order``, ``(nb, 16 nb)``.
+
+    ``c @ S`` holds, for child ``k`` of :data:`CHILDREN`, the values of the polynomial at the
+    child's control points in columns ``2k nb + (0..nb)`` and its Bernstein coefficients on
+    the child in columns ``(2k + 1) nb + (0..nb)``.
+    """
+    nb = len(bernstein_indices(order))
+    blocks = []
+    for child in CHILDREN:
+        w = np.column_stack([1.0 - child.sum(axis=1), child])
+        coefficients = _child_operator(order, w) if order else np.ones((1, 1))
+        values = bernstein_basis(order, control_points(order)) @ coefficients
+        blocks += [values.T, coefficients.T]
+    assert blocks[0].shape == (nb, nb)
+    return _readonly(np.hstack(blocks))
+
+
+@lru_cache(maxsize=16)
+def lattice_derivatives(degree: int) -> Float:
+    """Reference derivatives of the degree-q Lagrange basis at the degree-3(q-1) control
+    points, ``(3, nb, ndofs)``."""
+    pts = control_points(3 * (degree - 1))
+    return _readonly(np.ascontiguousarray(lagrange(degree).tabulate(1, pts)[1:, :, :, 0]))
+
+
+def determinant(nodes: Float, dphi: Float) -> Float:
+    """``det J``, ``(m, p)``, from nodes ``(m, ndofs, 3)`` and derivatives ``(3, p, ndofs)``."""
+    p = dphi.shape[1]
+    g = nodes.transpose(0, 2, 1) @ np.hstack([dphi[0].T, dphi[1].T, dphi[2].T])  # (m, 3, 3p)
+    j = [[g[:, i, k * p : (k + 1) * p] for k in range(3)] for i in range(3)]
+    return (
+        j[0][0] * (j[1][1] * j[2][2] - j[1][2] * j[2][1])
+        - j[0][1] * (j[1][0] * j[2][2] - j[1][2] * j[2][0])
+        + j[0][2] * (j[1][0] * j[2][1] - j[1][1] * j[2][0])
+    )
+
+
+def affine_determinant(nodes: Float) -> Float:
+    """``det J`` of the affine tetrahedron through the vertex nodes ``nodes[:, :4]``, ``(m,)``."""
+    p = nodes[:, :4]
+    a, b, c = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 3] - p[:, 0]
+    return (
+        a[:, 0] * (b[:, 1] * c[:, 2] - b[:, 2] * c[:, 1])
+        - b[:, 0] * (a[:, 1] * c[:, 2] - a[:, 2] * c[:, 1])
+        + c[:, 0] * (a[:, 1] * b[:, 2] - a[:, 2] * b[:, 1])
+    )

@@ -1,0 +1,273 @@
+"""Curved tetrahedra: the 3D blend of the closest-point projection (the 3D part of :mod:`.curved`).
+
+A tetrahedron touches Gamma_h by a positive face (three vertices on Gamma), by edges of
+positive faces only, or by a vertex. Its map is the affine map ``A`` through the ``M_h``
+images of its vertices plus displacements built from face and edge data only::
+
+    G = A + sum_{e on Gamma_h} E_e + E_F                 (E_F only with a positive face F)
+
+With ``delta(mu) = pi(sum_k mu_k S_k) - sum_k mu_k Y_k`` (``S``: background positions for
+``G_h``, the images ``Y`` for ``G~_h``; ``Y = pi(S)`` at the vertices on Gamma):
+
+* an edge ``e = (i, j)`` of Gamma_h contributes the 2D transfinite blend of Rangarajan &
+  Lew (2014) in the variables ``(l_i, l_j)`` only::
+
+      E_e = 1/2 [ l_j / (1 - l_i) delta(s = l_i) + l_i / (1 - l_j) delta(s = 1 - l_j) ]
+
+  with ``delta(s)`` at ``mu = s e_i + (1 - s) e_j``. It is ``pi`` of the straight edge point
+  on ``e``, vanishes on every face without ``e`` and is, on a face with ``e``, the 2D blend
+  of that triangle: every cell around ``e`` gives a shared node the same position. It is
+  smooth (``delta`` vanishes at the end points).
+* the positive face ``F = (a, b, c)`` opposite the inside vertex ``d`` contributes the same
+  blend one dimension up, along the three edges ``d - v``::
+
+      E_F = 1/3 sum_{v in F} l_v / (l_v + l_d) R_F(P_v),   P_v = l + l_d (e_v - e_d)
+
+  of the remainder ``R_F = delta - sum_{e in F} E_e`` on ``F`` (zero on the edges of
+  ``F``). ``E_F`` vanishes on the three other faces, and ``G = pi(straight face point)`` on
+  ``F``: the map is exactly conforming. In 2D the same construction is the blend of
+  :func:`~dolfinx_universal.curved.transfinite_map`.
+
+Cells touching Gamma at a vertex only stay affine. Every term is ``weight * delta(mu)`` with
+weights and points ``mu`` fixed by the reference node, the inside vertex ``d`` and the set
+of curved edges: each such pattern is tabulated once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from functools import lru_cache
+
+import basix
+import numpy as np
+import numpy.typing as npt
+from dolfinx import la
+
+from ._geometry import Float, Int
+
+__all__ = ["LOCAL_EDGES", "gamma_entities", "map_nodes", "reference_nodes"]
+
+LOCAL_EDGES = np.array([[2, 3], [1, 3], [1, 2], [0, 3], [0, 2], [0, 1]])
+"""Local vertices of the six edges of a DOLFINx (basix) tetrahedron; face ``k`` is opposite
+vertex ``k``."""
+
+_ZERO = 1e-13
+"""Barycentric coordinates of basix's reference points below this are zero (``1 - X - Y - Z``
+leaves a few ulps on the opposite face)."""
+
+
+@lru_cache(maxsize=16)
+def _element(degree: int) -> basix.finite_element.FiniteElement:
+    return basix.create_element(
+        basix.ElementFamily.P, basix.CellType.tetrahedron, degree, basix.LagrangeVariant.gll_warped
+    )
+
+
+@lru_cache(maxsize=16)
+def reference_nodes(degree: int) -> Float:
+    """Barycentric coordinates of the degree-q GLL-warped Lagrange nodes, ``(ndofs, 4)``.
+
+    Column ``i`` is the coordinate of local vertex ``i``; rows follow DOLFINx's node order
+    (vertices, edges 0-5, faces 0-3, interior). Coordinates within ``1e-13`` of 0 are 0
+    (read-only).
+    """
+    p = _element(degree).points
+    lam = np.column_stack([1.0 - p.sum(axis=1), p])
+    lam[np.abs(lam) < _ZERO] = 0.0
+    lam.setflags(write=False)
+    return lam
+
+
+def gamma_entities(
+    msh: object, sign_on_gamma: npt.NDArray[np.bool_], immersed: Int
+) -> tuple[npt.NDArray[np.int8], npt.NDArray[np.bool_]]:
+    """Positive faces and edges of Gamma_h of every local cell (owned and ghost). Collective.
+
+    Parameters
+    ----------
+    msh
+        The straight conforming tetrahedral mesh.
+    sign_on_gamma
+        Vertices on Gamma ``(num_vertices,)``.
+    immersed
+        Owned faces of Gamma_h (the immersed facet tags) ``(k,)``.
+
+    Returns
+    -------
+    face
+        Local vertex opposite the positive face of each cell, -1 where it has none,
+        ``(num_cells,)``.
+    edges
+        Whether each local edge (:data:`LOCAL_EDGES`) is an edge of a positive face,
+        ``(num_cells, 6)``; the same answer on every rank holding the edge.
+    """
+    topo = msh.topology  # type: ignore[attr-defined]
+    topo.create_connectivity(3, 2)
+    topo.create_entities(1)
+    topo.create_connectivity(3, 1)
+    c2f = topo.connectivity(3, 2).array.reshape(-1, 4)
+    c2e = topo.connectivity(3, 1).array.reshape(-1, 6)
+    c2v = topo.connectivity(3, 0).array.reshape(-1, 4)
+
+    fv = la.vector(topo.index_map(2), 1)
+    fv.array[:] = 0.0
+    fv.array[immersed] = 1.0
+    fv.scatter_forward()  # the owners' tags on the ghost faces
+    on_face = fv.array[c2f] > 0  # (num_cells, 4)
+    # a face of Gamma_h has its three vertices on Gamma (guards against a stale tag)
+    on_face &= np.stack([sign_on_gamma[np.delete(c2v, k, axis=1)].all(axis=1) for k in range(4)], 1)
+    face = np.where(on_face.any(axis=1), np.argmax(on_face, axis=1), -1).astype(np.int8)
+
+    has = np.flatnonzero(face >= 0)
+    # the edges of face k are the edges without vertex k
+    face_edges = np.array([[e for e in range(6) if k not in LOCAL_EDGES[e]] for k in range(4)])
+    ev = la.vector(topo.index_map(1), 1)
+    ev.array[:] = 0.0
+    ev.array[c2e[has[:, None], face_edges[face[has]]].ravel()] = 1.0
+    ev.scatter_reverse(la.InsertMode.add)
+    ev.scatter_forward()
+    return face, ev.array[c2e] > 0
+
+
+@lru_cache(maxsize=512)
+def _program(degree: int, d: int, mask: int) -> tuple[Float, npt.NDArray[np.intp], Float]:
+    """The blend at the reference nodes of one pattern as ``weight * delta(mu)`` terms.
+
+    Parameters
+    ----------
+    degree
+        Geometry degree.
+    d
+        Local vertex opposite the positive face, -1 if none.
+    mask
+        Curved local edges, bit ``e`` for edge ``e`` of :data:`LOCAL_EDGES`.
+
+    Returns
+    -------
+    points
+        Barycentric points ``mu`` to project, ``(r, 4)``.
+    direct
+        For each node, the point whose projection it is (nodes on Gamma_h), else -1, ``(p,)``.
+    weights
+        ``(p, r)``: the node's image is ``A + weights @ delta(points)`` where ``direct < 0``.
+    """
+    lam = reference_nodes(degree)
+    p = len(lam)
+    index: dict[tuple[float, ...], int] = {}
+    points: list[Float] = []
+
+    def request(mu: Float) -> int:
+        key = tuple(mu.tolist())
+        if key not in index:
+            index[key] = len(points)
+            points.append(mu)
+        return index[key]
+
+    terms: list[tuple[int, int, float]] = []
+
+    def edge_blend(node: int, mu: Float, i: int, j: int, scale: float) -> None:
+        li, lj = mu[i], mu[j]
+        if li <= 0.0 or lj <= 0.0:
+            return
+        for a, b in ((i, j), (j, i)):  # delta(s = l_a) with weight l_b / (1 - l_a)
+            nu = np.zeros(4)
+            nu[a], nu[b] = mu[a], 1.0 - mu[a]
+            terms.append((node, request(nu), scale * 0.5 * mu[b] / (1.0 - mu[a])))
+
+    curved = [tuple(LOCAL_EDGES[e]) for e in range(6) if mask >> e & 1]
+    face = [v for v in range(4) if v != d] if d >= 0 else []
+    face_edges = [(i, j) for i, j in LOCAL_EDGES.tolist() if d >= 0 and d not in (i, j)]
+    direct = np.full(p, -1, dtype=np.intp)
+    for node, mu in enumerate(lam):
+        if (mu == 1.0).any():
+            continue  # a vertex: its M_h image
+        if d >= 0 and mu[d] == 0.0:
+            direct[node] = request(mu)  # on the positive face
+            continue
+        support = set(np.flatnonzero(mu > 0.0).tolist())
+        if any(support <= {i, j} for i, j in curved):
+            direct[node] = request(mu)  # on a curved edge
+            continue
+        for i, j in curved:
+            edge_blend(node, mu, i, j, 1.0)
+        if d >= 0 and (mu[face] > 0.0).all():
+            for v in face:
+                w = mu[v] / (mu[v] + mu[d]) / 3.0
+                pv = mu.copy()
+                pv[v] += mu[d]
+                pv[d] = 0.0
+                terms.append((node, request(pv), w))
+                for i, j in face_edges:
+                    edge_blend(node, pv, i, j, -w)
+    pts = np.array(points).reshape(-1, 4)
+    weights = np.zeros((p, len(pts)))
+    for node, r, w in terms:
+        weights[node, r] += w
+    for a in (pts, direct, weights):
+        a.setflags(write=False)
+    return pts, direct, weights
+
+
+def map_nodes(
+    cells: Int,
+    y: Float,
+    x_background: Float,
+    face: npt.NDArray[np.int8],
+    edges: npt.NDArray[np.bool_],
+    degree: int,
+    kind: str,
+    closest_point: Callable[[Float], Float],
+) -> Float:
+    """Images of the degree-q reference nodes of tetrahedra under ``G_h`` or ``G~_h``.
+
+    Parameters
+    ----------
+    cells
+        Tetrahedra ``(m, 4)`` (process-local vertex indices).
+    y
+        ``M_h`` images of the vertices ``(num_vertices, 3)``.
+    x_background
+        Background positions of the vertices ``(num_vertices, 3)``.
+    face
+        Local vertex opposite each cell's positive face, -1 if none, ``(m,)``.
+    edges
+        Curved local edges (edges of Gamma_h) of each cell, ``(m, 6)``.
+    degree
+        Lagrange degree of the nodes.
+    kind
+        ``"G"`` (project the background's faces and edges) or ``"G~"`` (project those of the
+        straight mesh).
+    closest_point
+        Projection onto Gamma, ``(n, 3) -> (n, 3)``; called once.
+
+    Returns
+    -------
+    Node coordinates ``(m, ndofs, 3)`` in DOLFINx's node order.
+    """
+    lam = reference_nodes(degree)
+    yc = y[cells]  # (m, 4, 3)
+    sc = (x_background if kind == "G" else y)[cells]
+    # einsum sums in vertex order: a straight node gets the same value from all its cells
+    nodes = np.einsum("pi,cid->cpd", lam, yc)
+    mask = (edges.astype(np.int64) << np.arange(6)).sum(axis=1)
+    key = (face.astype(np.int64) + 1) * 64 + mask
+    groups = [(k, np.flatnonzero(key == k)) for k in np.unique(key)]
+    programs = [_program(degree, int(k) // 64 - 1, int(k) % 64) for k, _ in groups]
+    queries = [
+        np.einsum("rk,ckd->crd", prog[0], sc[rows])
+        for prog, (_, rows) in zip(programs, groups, strict=True)
+    ]
+    flat = np.concatenate([q.reshape(-1, 3) for q in queries]) if queries else np.zeros((0, 3))
+    proj = np.asarray(closest_point(flat), dtype=np.float64) if len(flat) else flat
+    start = 0
+    for (points, direct, weights), (_, rows), q in zip(programs, groups, queries, strict=True):
+        pi = proj[start : start + q.size // 3].reshape(q.shape)
+        start += q.size // 3
+        if not len(points):
+            continue
+        delta = pi - np.einsum("rk,ckd->crd", points, yc[rows])
+        blend = nodes[rows] + np.einsum("pr,crd->cpd", weights, delta)
+        on = direct >= 0
+        blend[:, on] = pi[:, direct[on]]
+        nodes[rows] = blend
+    return nodes
