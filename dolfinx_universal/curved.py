@@ -454,14 +454,20 @@ def boundary_dof_data(
     dofs
         Process-local dof (block) indices on the tagged facets, owned and ghost, ``(n,)``.
     closest
-        Closest points of Gamma to the dof coordinates, ``(n, 2)`` (the dofs lie on Gamma
+        Closest points of Gamma to the dof coordinates, ``(n, gdim)`` (the dofs lie on Gamma
         when the space and geometry degrees agree).
-    normal, tangent
-        Unit outward normal and tangent of Gamma there, ``(n, 2)``.
+    normal
+        Unit outward normal of Gamma there, ``(n, gdim)``.
+    tangent
+        Unit tangent of a curve ``(n, 2)``; orthonormal tangent bases of a surface
+        ``(n, 2, 3)`` (:meth:`~dolfinx_universal.surfaces.Surface.tangent_basis`).
     """
+    tdim = curved.mesh.topology.dim
     facets = curved.facet_tags.find(tag)
-    dofs = fem.locate_dofs_topological(V, 1, facets)
-    xd = V.tabulate_dof_coordinates()[dofs, :2]
+    dofs = fem.locate_dofs_topological(V, tdim - 1, facets)
+    xd = V.tabulate_dof_coordinates()[dofs, :tdim]
     boundary = curved.conforming.boundary
-    y = boundary.closest_point(xd) if len(dofs) else np.zeros((0, 2))
-    return dofs, y, boundary.normal(y), boundary.tangent(y)
+    y = boundary.closest_point(xd) if len(dofs) else np.zeros((0, tdim))
+    if tdim == 2:
+        return dofs, y, boundary.normal(y), boundary.tangent(y)
+    return dofs, y, boundary.normal(y), boundary.tangent_basis(y)

@@ -142,6 +142,22 @@ def test_maps_I_G_and_tilde(conformed):
     assert t.min_jacobian_ratio > 0.9  # the straight faces: nearly affine
 
 
+def test_boundary_dof_data(conformed):
+    """Boundary dofs of a vector P3 space on the degree-3 sphere: the dofs are their own
+    closest points; radial normals; orthonormal tangent bases."""
+    cm = conformed("sphere")
+    cv = du.curved_mesh(cm, 3, "I")
+    V = fem.functionspace(cv.mesh, ("Lagrange", 3, (3,)))
+    dofs, y, n, t = du.boundary_dof_data(V, cv)
+    x = V.tabulate_dof_coordinates()[dofs]
+    assert len(dofs) > 0 and np.abs(y - x).max() < 1e-14
+    radial = (x - C) / np.linalg.norm(x - C, axis=1)[:, None]
+    assert np.abs(n - radial).max() < 1e-12
+    assert t.shape == (len(dofs), 2, 3)
+    assert np.abs(np.einsum("nid,nd->ni", t, n)).max() < 1e-12
+    assert np.abs(np.einsum("nid,njd->nij", t, t) - np.eye(2)).max() < 1e-12
+
+
 def test_volume_converges():
     """Relative volume error of the unit ball at three sizes: O(h^(q+1)) or better (degree 2
     and 4 nodes superconverge to ~h^4 and ~h^6), against O(h^2) straight."""
