@@ -1242,7 +1242,9 @@ def _run_surface(
         "n_relocated": cm.num_relocated,
         "facets": {"tags": {"immersed": IMMERSED, "outer": OUTER}, "counts": facets},
         "quality": quality,
-        "background": "A15 uniform (--uniform)" if args.uniform else "sized (mesh_domain)",
+        "background": "A15 uniform (--uniform)"
+        if certificate is None
+        else f"{certificate.background} (mesh_domain)",  # the one mesh_domain chose
         "certificate": certificate.as_dict() if certificate is not None else None,
         "mpi_size": comm.size,
         "dolfinx_version": dolfinx.__version__,

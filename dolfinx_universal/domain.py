@@ -17,6 +17,7 @@ from dolfinx import mesh as dmesh
 from .boundaries import Boundary, Domain
 from .conform import ConformingMesh, conform
 from .curved import MAPS, CurvedMesh, curved_mesh
+from .dimensions import cell_kernels
 from .graded import EDGE_FACTOR, graded_mesh
 from .graded_tet import BandSizeField
 from .quality import quality_report
@@ -60,13 +61,16 @@ class Certificate:
     """Proven lower bound of ``det J / det J_straight`` over the curved cells (Bernstein
     coefficients with subdivision); 1 for straight meshes."""
     min_angle_deg: float
-    """Smallest angle of the conforming (straight) triangles."""
+    """Smallest angle of the conforming (straight) triangles; smallest dihedral angle of
+    the tetrahedra."""
     max_angle_deg: float
-    """Largest angle of the conforming (straight) triangles."""
+    """Largest angle of the conforming (straight) triangles; largest dihedral angle of the
+    tetrahedra."""
     min_angle_floor_deg: float
-    """The quality floor that every triangle satisfies."""
+    """The quality floor that every cell satisfies (an angle; a dihedral angle in 3D)."""
     num_loops: int
-    """Closed loops of Gamma_h: one per curve of Gamma, each following its curve."""
+    """Closed loops (surfaces in 3D) of Gamma_h: one per curve (surface) of Gamma, each
+    following it."""
     num_pieces: int
     """Connected pieces of the mesh (as many as the domain has)."""
     refinement_rounds: int
@@ -81,19 +85,30 @@ class Certificate:
     num_background_cells: int
     degree: int
     map: str
+    background: str = "graded"
+    """The background actually used (the last round's): ``"graded"`` (the acute quadtree
+    of triangles), ``"graded BCC octree"`` or ``"A15 uniform"`` (tetrahedra)."""
+    tdim: int = 2
+    """Topological dimension: 2 (triangles) or 3 (tetrahedra)."""
 
     def __str__(self) -> str:
+        if self.tdim == 2:
+            cells, bg = "cells", "a graded background"
+            loops, angles = "closed loop(s), one per curve", "angles"
+        else:
+            cells = cell_kernels(self.tdim).plural
+            bg = f"the {self.background} background"
+            loops, angles = "closed surface(s), one per surface", "dihedral angles"
         lines = [
-            f"universal mesh certificate: {self.num_cells} cells (degree {self.degree}"
+            f"universal mesh certificate: {self.num_cells} {cells} (degree {self.degree}"
             + (f", map {self.map})" if self.degree > 1 else ")")
-            + f" from a graded background of {self.num_background_cells} cells, "
+            + f" from {bg} of {self.num_background_cells} {cells}, "
             f"h in [{self.h_min:.3g}, {self.h_max:.3g}]",
-            f"  Gamma_h: {self.num_loops} closed loop(s), one per curve; "
-            f"{self.num_pieces} connected piece(s)",
+            f"  Gamma_h: {self.num_loops} {loops}; {self.num_pieces} connected piece(s)",
             f"  conditioning angles <= {self.max_conditioning_angle_deg:.2f} deg (< 90 needed)",
             f"  feature size / h >= {self.min_feature_over_h:.3g}, "
             f"radius of curvature / h >= {self.min_curvature_radius_over_h:.3g}",
-            f"  angles in [{self.min_angle_deg:.2f}, {self.max_angle_deg:.2f}] deg "
+            f"  {angles} in [{self.min_angle_deg:.2f}, {self.max_angle_deg:.2f}] deg "
             f"(floor {self.min_angle_floor_deg:g})",
             f"  det J / det J_straight >= {self.min_jacobian_ratio:.4g} (proven)",
             f"  refinement rounds: {self.refinement_rounds}",
@@ -458,7 +473,8 @@ def mesh_domain(
                     refinable=False,
                 ) from None
             rounds.append(f"round {len(rounds) + 1}: {_short(first)}")
-            plan.refine(e.points)
+            plan, note = _refined(plan, e.points, comm, max_cells)
+            rounds[-1] += note
 
     jac = curved.min_jacobian_ratio if curved is not None else 1.0
     quality = quality_report(cm)
@@ -485,6 +501,8 @@ def mesh_domain(
         num_background_cells=background.topology.index_map(tdim).size_global,
         degree=degree,
         map=map,
+        background=plan.name,
+        tdim=tdim,
     )
     timings["total"] = time.perf_counter() - t_start
     timings = {k: comm.allreduce(v, op=MPI.MAX) for k, v in timings.items()}
@@ -502,6 +520,8 @@ class _Plan:
     """Radii of curvature at ``points`` ``(n,)``."""
     local_size: bool
     """Whether the background is graded (``local_size`` of the conforming step)."""
+    name: str
+    """The background, as :attr:`Certificate.background` names it."""
 
     def sizes(self) -> Float:
         """Background size at ``points`` ``(n,)``."""
@@ -541,6 +561,7 @@ class _GradedPlan(_Plan):
     """Triangles: a graded acute quadtree background sized by a field refined locally."""
 
     local_size = True
+    name = "graded"
 
     def __init__(self, box: Float, field_: SizeField, feature: Float, rho: Float, h: float):
         self.box, self.field, self.feature, self.rho, self.h = box, field_, feature, rho, h
@@ -617,8 +638,37 @@ def _tet_plan(
     if graded.top <= graded.base * (1 + 1e-9):  # one level: the same size everywhere
         return uniform
     if max(graded.estimate(), uniform.estimate()) > max_cells:
-        return graded if graded.estimate() < uniform.estimate() else uniform
-    return graded if graded.count(comm) < AUTO_RATIO * uniform.count() else uniform
+        choice = graded if graded.estimate() < uniform.estimate() else uniform
+    else:
+        choice = graded if graded.count(comm) < AUTO_RATIO * uniform.count() else uniform
+    if choice is graded:
+        graded.alternative = uniform
+    return choice
+
+
+def _refined(plan: _Plan, places: Float, comm: MPI.Comm, max_cells: float) -> tuple[_Plan, str]:
+    """The plan of the next round after a refinable failure near ``places`` (collective),
+    and a note for the round's record.
+
+    The plan refined around the places; but on the first failure of a graded octree that
+    ``tet_background="auto"`` chose over A15, the A15 plan of the same smallest size where
+    that has fewer tetrahedra than the refined octree, or where only it stays within
+    ``max_cells``. The octree's uniform bands are BCC (dihedral angles of 90 degrees): a
+    small body (a spherical hole of 4-7 sizes' radius) can leave inverted tetrahedra after
+    the snap there where the acute A15 lattice of the same size has none; and halving a
+    body's size halves that of every component whose band it reaches (a body near its
+    container: the container's whole band), which can cost more than the A15 background
+    (8 times the tetrahedra near Gamma, above ``max_cells`` where the A15 one fits)."""
+    alt = getattr(plan, "alternative", None)
+    plan.refine(places)
+    if not isinstance(plan, _GradedTetPlan) or alt is None:
+        return plan, ""
+    plan.alternative = None  # once
+    if alt.estimate() > max_cells:
+        return plan, ""
+    if plan.estimate() > max_cells or alt.count() < plan.count(comm):
+        return alt, f" (then the {alt.name} background of size {alt.size:.3g})"
+    return plan, ""
 
 
 class _UniformPlan(_Plan):
@@ -626,6 +676,7 @@ class _UniformPlan(_Plan):
     degrees) of the smallest target size near Gamma, halved where a check fails."""
 
     local_size = False
+    name = "A15 uniform"
 
     def __init__(self, box: Float, size: float, points: Float, feature: Float, rho: Float):
         self.box, self.size = box, size
@@ -709,6 +760,7 @@ class _GradedTetPlan(_Plan):
     halved."""
 
     local_size = True
+    name = "graded BCC octree"
 
     def __init__(
         self,
@@ -737,6 +789,8 @@ class _GradedTetPlan(_Plan):
         self._tree: tuple[object, object] | None = None  # octree and leaves, once built
         self.boundary: Boundary | None = None
         self.comm: MPI.Comm | None = None
+        self.alternative: _UniformPlan | None = None
+        """The A15 plan ``tet_background="auto"`` passed over (see :func:`_refined`)."""
 
     @property
     def base(self) -> float:

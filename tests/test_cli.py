@@ -383,9 +383,17 @@ def test_surfaces(mpi_tmp_path, capsys, shape, args):
     if plot and comm.rank == 0:
         assert (out / "mesh.png").stat().st_size > 20_000
     uniform = "--uniform" in args
-    assert s["background"] == ("A15 uniform (--uniform)" if uniform else "sized (mesh_domain)")
     assert (s["certificate"] is None) == uniform
-    if not uniform:
+    if uniform:
+        assert s["background"] == "A15 uniform (--uniform)"
+    else:  # the background mesh_domain chose, in the certificate and its 3D wording
+        cert = s["certificate"]
+        assert cert["background"] in ("A15 uniform", "graded BCC octree") and cert["tdim"] == 3
+        assert s["background"] == f"{cert['background']} (mesh_domain)"
+        text = s["certificate_text"]
+        assert f"tetrahedra (degree 1) from the {cert['background']} background" in text
+        assert "closed surface(s)" in text and "dihedral angles in" in text
+        assert "triangle" not in text and "loop" not in text
         assert s["certificate"]["num_cells"] == s["n_cells"]
         assert s["h_used"] <= s["h"] and s["certificate"]["max_conditioning_angle_deg"] < 90
     if shape == "implicit":
@@ -397,6 +405,19 @@ def test_surfaces(mpi_tmp_path, capsys, shape, args):
     assert msh.topology.index_map(3).size_global == s["n_cells"]
     nf = msh.topology.index_map(2).size_local
     assert comm.allreduce(int((tags.find(1) < nf).sum())) == s["facets"]["counts"]["immersed"]
+
+
+@pytest.mark.mpi
+def test_surface_background_is_the_one_used(mpi_tmp_path):
+    """A small sphere in a wide box: mesh_domain takes the graded octree, and the summary
+    says so (it said A15 whatever mesh_domain chose)."""
+    out = mpi_tmp_path / "small"
+    args = ["--sphere", "0.3", "--center", "0.0123", "0.0071", "0.0049", "--h", "0.8"]
+    assert main([*args, "--margin", "1.7", "--no-plot", "--out", str(out)]) == 0
+    s = read_summary(out)
+    assert s["background"] == "graded BCC octree (mesh_domain)"
+    assert s["certificate"]["background"] == "graded BCC octree"
+    assert "from the graded BCC octree background" in s["certificate_text"]
 
 
 def test_surface_help(capsys):

@@ -102,6 +102,9 @@ def test_mesh_domain_meshes_the_thin_body(degree):
     assert cert.max_conditioning_angle_deg < 90
     text = str(cert)
     assert "2 closed loop(s)" in text and "proven" in text
+    assert cert.background == "graded" and cert.tdim == 2  # the 2D wording, unchanged
+    assert f"{cert.num_cells} cells (degree {degree}" in text and "graded background" in text
+    assert "  angles in [" in text and "tetrahedra" not in text
 
 
 def test_mesh_domain_meshes_the_neck():

@@ -295,6 +295,34 @@ def test_auto_background():
 
 
 @pytest.mark.mpi
+def test_auto_falls_back_to_a15():
+    """After a refinable failure on the octree that ``auto`` chose (the BCC band left
+    inverted tetrahedra at a small spherical hole: fuzz seed 154, a sphere of radius 0.54
+    in a superellipsoid, at size 0.08), the next round takes the A15 background of the same
+    size where the refined octree would exceed ``max_cells`` (there: both components'
+    bands halved, 6.8e6 tetrahedra estimated, the A15 one 2.4e6; mesh_domain raised) or
+    have more tetrahedra; else the refined octree. Once only; never for ``"graded"``."""
+    from dolfinx_universal.domain import _GradedTetPlan, _refined, _tet_plan, _UniformPlan
+
+    place = np.array([C + [0.3, 0.0, 0.0]])  # on the sphere
+    plan = _tet_plan(comm, EXTERIOR, 0.8, 1, EXTERIOR_BOX, 3.0, None, "auto", 5e6)
+    assert isinstance(plan, _GradedTetPlan) and isinstance(plan.alternative, _UniformPlan)
+    a15 = plan.alternative
+    plan.estimate = lambda: 6e6  # type: ignore[method-assign]  # the refined octree's
+    nxt, note = _refined(plan, place, comm, 5e6)
+    assert nxt is a15 and a15.size == pytest.approx(0.1) and "the A15 uniform background" in note
+    # a small body in a large box: the refined octree (4.4e5) is still smaller than A15 (8e5)
+    plan = _tet_plan(comm, EXTERIOR, 0.8, 1, EXTERIOR_BOX, 3.0, None, "auto", 5e6)
+    nxt, note = _refined(plan, place, comm, 5e6)
+    assert nxt is plan and note == "" and plan.alternative is None
+    assert np.allclose(plan.component_sizes, 0.05)
+    plan = _tet_plan(comm, EXTERIOR, 0.8, 1, EXTERIOR_BOX, 3.0, None, "graded", 5e6)
+    assert isinstance(plan, _GradedTetPlan) and plan.alternative is None
+    plan.estimate = lambda: 6e6  # type: ignore[method-assign]
+    assert _refined(plan, place, comm, 5e6)[0] is plan  # asked for: kept (check_size refuses)
+
+
+@pytest.mark.mpi
 def test_mesh_domain_graded():
     """A small sphere in a box on the graded background: the mesh is the conforming mesh of
     the octree background (BCC in the band, coarser away from it), its dihedral angles
@@ -305,6 +333,12 @@ def test_mesh_domain_graded():
     assert cert.h_min == pytest.approx(0.1) and cert.refinement_rounds == 0
     assert 30.0 <= cert.min_angle_deg and cert.max_angle_deg <= 125.0
     assert cert.num_pieces == 1 and cert.num_loops == 1
+    # the certificate names the background used and speaks of tetrahedra
+    assert cert.background == "graded BCC octree" and cert.tdim == 3
+    text = str(cert)
+    assert f"{cert.num_cells} tetrahedra (degree 1) from the graded BCC octree background" in text
+    assert "1 closed surface(s), one per surface" in text
+    assert "  dihedral angles in [" in text and "triangle" not in text and "loop" not in text
     from dolfinx_universal.domain import _GradedTetPlan
 
     plan = _GradedTetPlan.create(comm, EXTERIOR, 0.8, 1, EXTERIOR_BOX, 3.0, None)
