@@ -117,6 +117,14 @@ quarters of the cell side: a point lies in a tetrahedron whose centroid is withi
 distance in each coordinate."""
 
 
+def _layered_mesh(comm: MPI.Comm, x: Float, cells: Int) -> dmesh.Mesh:
+    """The DOLFINx mesh of this rank's slab of layers (vertices ``x`` it owns, cells by
+    global vertex index), each rank keeping its own cells
+    (:func:`~dolfinx_universal.background.layout_partitioner`)."""
+    partitioner = layout_partitioner() if comm.size > 1 else None
+    return create_mesh(comm, cells, x, partitioner, "tetrahedron")
+
+
 def _check_box(box: npt.ArrayLike, h: float, name: str) -> Float:
     """The box as a checked ``(2, 3)`` array ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``."""
     b = np.asarray(box, dtype=np.float64)
@@ -319,10 +327,7 @@ def bcc_mesh(comm: MPI.Comm, box: Sequence[Sequence[float]], h: float) -> dmesh.
     -------
     A DOLFINx tetrahedral mesh with degree-1 geometry and shared-facet ghosts.
     """
-    x, cells = _bcc_part(_bcc_layout(box, h), comm.rank, comm.size)
-    return create_mesh(
-        comm, cells, x, layout_partitioner() if comm.size > 1 else None, "tetrahedron"
-    )
+    return _layered_mesh(comm, *_bcc_part(_bcc_layout(box, h), comm.rank, comm.size))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -456,7 +461,4 @@ def a15_mesh(comm: MPI.Comm, box: Sequence[Sequence[float]], h: float) -> dmesh.
     -------
     A DOLFINx tetrahedral mesh with degree-1 geometry and shared-facet ghosts.
     """
-    x, cells = _a15_part(_a15_layout(box, h), comm.rank, comm.size)
-    return create_mesh(
-        comm, cells, x, layout_partitioner() if comm.size > 1 else None, "tetrahedron"
-    )
+    return _layered_mesh(comm, *_a15_part(_a15_layout(box, h), comm.rank, comm.size))
