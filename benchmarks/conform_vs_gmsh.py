@@ -69,6 +69,7 @@ import dolfinx_universal  # noqa: F401  (initialises the DOLFINx wheel before do
 from mpi4py import MPI
 
 import gmsh
+from _tables import columns, header
 from dolfinx.io import gmsh as dgmsh
 
 from dolfinx_universal.background import equilateral_mesh
@@ -325,11 +326,6 @@ def main(argv: list[str] | None = None) -> list[dict]:
 
 def table(rows: list[dict], ranks: int) -> str:
     """Fixed-width text tables of the results."""
-    w = 9
-
-    def line(cells):
-        return " ".join(f"{c:>{w}}" for c in cells)
-
     lines = [f"Re-conform a moved disc: universal mesh ({ranks} MPI rank(s), max over ranks)"]
     head = [
         "target",
@@ -346,11 +342,11 @@ def table(rows: list[dict], ranks: int) -> str:
         "conf cpu",
     ]
     units = ["cells", "", "[s]", "[s]", "[s]", "", "[s]", "[s]", "[s]", "[s]", "[s]", "[s]"]
-    lines += [line(head), line(units), "-" * (len(head) * (w + 1) - 1)]
+    lines += header(head, units)
     for r in rows:
         st = r["conform_stages_s"]
         lines.append(
-            line(
+            columns(
                 [
                     f"{r['target_cells']:.0e}",
                     f"{r['h']:.2e}",
@@ -389,10 +385,10 @@ def table(rows: list[dict], ranks: int) -> str:
         "cpu gen",
     ]
     units = ["cells", "", "[s]", "[s]", "[s]", "[s]", "wall", "wall", "gmsh/conf", "/conf"]
-    lines += [line(head), line(units), "-" * (len(head) * (w + 1) - 1)]
+    lines += header(head, units)
     for r in rows:
         lines.append(
-            line(
+            columns(
                 [
                     f"{r['target_cells']:.0e}",
                     r["gmsh_cells"],

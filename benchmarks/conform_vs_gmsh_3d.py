@@ -56,6 +56,7 @@ from mpi4py import MPI
 
 import gmsh
 import numpy as np
+from _tables import columns, header
 from conform_vs_gmsh import Clock, load, timed
 from dolfinx.io import gmsh as dgmsh
 
@@ -276,19 +277,14 @@ def main(argv: list[str] | None = None) -> list[dict]:
 
 def table(rows: list[dict], ranks: int) -> str:
     """Fixed-width text tables of the results."""
-    w = 9
-
-    def line(cells, width=w):
-        return " ".join(f"{c:>{width}}" for c in cells)
-
     lines = [f"Mesh the unit ball ({ranks} MPI rank(s), wall seconds, max over ranks)"]
     head = ["target", "h", "bg tets", "bg", "prepare", "first", "universal", "tets"]
     head += ["conform", "classify", "project", "relax", "map", "mesh"]
-    lines += [line(head), "-" * (len(head) * (w + 1) - 1)]
+    lines += header(head)
     for r in rows:
         st = r["conform_stages_s"]
         lines.append(
-            line(
+            columns(
                 [
                     f"{r['target_cells']:.0e}",
                     f"{r['h']:.4f}",
@@ -310,10 +306,10 @@ def table(rows: list[dict], ranks: int) -> str:
     )
     head = ["target", "gmsh tets", "generate", "to_mesh", "gmsh", "gmsh/univ", "gmsh/conf"]
     head += ["cpu g/u", "cpu g/c"]
-    lines += ["", line(head), "-" * (len(head) * (w + 1) - 1)]
+    lines += ["", *header(head)]
     for r in rows:
         lines.append(
-            line(
+            columns(
                 [
                     f"{r['target_cells']:.0e}",
                     r["gmsh_cells"],
@@ -336,10 +332,10 @@ def table(rows: list[dict], ranks: int) -> str:
     for r in rows:
         lines += ["", f"Quality, target {r['target_cells']:.0e}"]
         head = ["mesh", "tets", "min dih", "max dih", "rad ratio", "mean rat", "inverted"]
-        lines += [line(head, 10), "-" * (len(head) * 11 - 1)]
+        lines += header(head, width=10)
         for name, q in (("universal", r["universal_quality"]), ("gmsh", r["gmsh_quality"])):
             lines.append(
-                line(
+                columns(
                     [
                         name,
                         q["n_cells"],
@@ -360,9 +356,9 @@ def table(rows: list[dict], ranks: int) -> str:
             or r["gmsh_quality"]["dihedral_histogram"][i]
         ]
         lo, hi = min(keep), max(keep) + 1
-        lines.append(line(["bin"] + bins[lo:hi], 8))
+        lines.append(columns(["bin"] + bins[lo:hi], 8))
         for name, q in (("univ", r["universal_quality"]), ("gmsh", r["gmsh_quality"])):
-            lines.append(line([name] + q["dihedral_histogram"][lo:hi], 8))
+            lines.append(columns([name] + q["dihedral_histogram"][lo:hi], 8))
     return "\n".join(lines)
 
 
