@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 from mpi4py import MPI
 
@@ -12,7 +12,6 @@ import numpy.typing as npt
 from ._geometry import Bool, Float, Int
 from .classify import conditioning_angle, proximal_vertex
 from .dimensions import cell_kernels
-from .gamma_tet import conditioning_dihedral
 from .validation import MeshingError, Problem, collective_call, where
 
 if TYPE_CHECKING:
@@ -21,13 +20,21 @@ if TYPE_CHECKING:
     from .sizing import CurveSamples
 
 __all__ = [
+    "TOPOLOGY_MESSAGES",
     "CellLocator",
+    "TopologyMessages",
+    "boundary_samples",
+    "cells_near_points",
     "classification_problems",
     "containment_problems",
     "conforming_problems",
     "gamma_h_topology",
     "low_quality_cells",
+    "missing_samples_problems",
+    "points_in_cells",
     "require_kept",
+    "samples_in_stars",
+    "tet_measures",
 ]
 
 
@@ -111,6 +118,8 @@ def classification_problems(
                 "boundary (e.g. equilateral or graded_mesh)"
             )
         else:
+            from .gamma_tet import conditioning_dihedral  # (gamma_tet imports this module)
+
             # a property of the background cells: their unperturbed positions
             theta = conditioning_dihedral(x0 if x0 is not None else xp, edges.facets, w)
             bad = theta > np.pi / 2 + 1e-9  # right angles (BCC) allowed up to rounding
@@ -123,8 +132,11 @@ def classification_problems(
         theta_max = float(theta.max())
         if bad.any():
             problems.append(Problem(text, places, int(bad.sum())))
+
         # The positive facet is the facet opposite the inside vertex.
-        centre = xp[edges.facets].mean(axis=1)
+        def centre(rows: npt.NDArray[np.intp]) -> Float:
+            return xp[edges.facets[rows]].mean(axis=1)
+
         k = np.argmin(s[c2v[pc_owned]], axis=1)
         f = c2f[pc_owned, k]
         off = f2c_offsets
@@ -135,7 +147,7 @@ def classification_problems(
                 Problem(
                     "the domain reaches the boundary of the background mesh near {where}: "
                     "enlarge the background",
-                    centre[lone],
+                    centre(np.flatnonzero(lone)),
                     int(lone.sum()),
                     refinable=False,
                 )
@@ -150,7 +162,7 @@ def classification_problems(
                     f"Gamma crosses both {cells} beside the positive {facet} near {{where}} (a "
                     "thin part of the domain or of its exterior): the background is too "
                     "coarse there, refine near it",
-                    centre[shared],
+                    centre(shared),
                     len(shared),
                 )
             )
@@ -177,6 +189,159 @@ def classification_problems(
         if bad.any():
             problems.append(Problem(text, xp[:nvo][bad], int(bad.sum())))
     return problems, theta_max
+
+
+def _inside(x: Float, cells: Int, p: Float, tol: float) -> Bool:
+    """Whether each point ``p[i]`` lies in the simplex ``cells[i]``: its barycentric
+    coordinates all at least ``-tol`` (relative: on a facet up to rounding is inside)."""
+    d = x.shape[1]
+    if d == 2:
+        a = x[cells[:, 0]]
+        b, e = x[cells[:, 1]] - a, x[cells[:, 2]] - a
+        q = p - a
+        det = b[:, 0] * e[:, 1] - e[:, 0] * b[:, 1]
+        l1 = q[:, 0] * e[:, 1] - e[:, 0] * q[:, 1]
+        l2 = b[:, 0] * q[:, 1] - q[:, 0] * b[:, 1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lam = np.column_stack([l1 / det, l2 / det])
+    else:  # Cramer's rule on coordinate columns (np.linalg on (k, 3, 3) is slower)
+        xt = [x[:, i] for i in range(3)]
+        av = [xt[i][cells[:, 0]] for i in range(3)]
+        e1, e2, e3 = ([xt[i][cells[:, k]] - av[i] for i in range(3)] for k in (1, 2, 3))
+        pa = [p[:, i] - av[i] for i in range(3)]
+        n1, n2, n3 = _soa_cross(e2, e3), _soa_cross(e3, e1), _soa_cross(e1, e2)
+        det = _soa_dot(e1, n1)
+        ok_det = np.abs(det) > 0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lam = np.column_stack([_soa_dot(pa, n) / det for n in (n1, n2, n3)])
+        lam[~ok_det] = -np.inf
+    rest = 1.0 - lam[:, 0]
+    for k in range(1, d):
+        rest = rest - lam[:, k]
+    return (lam >= -tol).all(axis=1) & (rest >= -tol)
+
+
+def points_in_cells(x: Float, cells: Int, points: Float, size: float, tol: float = 1e-12) -> Bool:
+    """Whether each point lies in one of ``cells`` (of diameter at most ``size``), ``(n,)``.
+
+    :meth:`CellLocator.contains` for many cells and few points, without the locator: on a
+    grid of bins of side ``size`` (and 1 %), each point is listed at the bin of its own and
+    at the bins one step lower along any axes (``2^d`` keys a point); the low corner of a
+    cell's bounding box lies in one of them when the cell contains the point. The cells are
+    paired with the points listed at their low corner's bin, the pairs whose point is in
+    the box get the barycentric test.
+
+    Parameters
+    ----------
+    x
+        Vertex coordinates ``(num_vertices, d)``.
+    cells
+        Simplices ``(m, d + 1)``.
+    points
+        The points ``(n, d)``.
+    size
+        At least the diameter of every cell.
+    tol
+        As in :meth:`CellLocator.contains`.
+    """
+    n, d = points.shape
+    found = np.zeros(n, dtype=bool)
+    if n == 0 or len(cells) == 0:
+        return found
+    g = 1.01 * max(float(size), 1e-300)
+    origin = points.min(axis=0) - 2.0 * g
+    pij = np.floor((points - origin) / g).astype(np.int64)  # >= 2
+    dims = pij.max(axis=0) + 2
+    strides = np.cumprod(np.concatenate([[1], dims[:0:-1]]))[::-1]
+    offsets = np.array(list(np.ndindex(*([2] * d))), dtype=np.int64)
+    keys = ((pij[:, None, :] - offsets[None]) @ strides).ravel()  # bins >= 1: no aliasing
+    order = np.argsort(keys, kind="stable")
+    keys, owner = keys[order], order // len(offsets)
+    q = x[cells]  # column by column: reductions along a short axis are slow in numpy
+    lo, hi = q[:, 0].copy(), q[:, 0].copy()
+    for k in range(1, cells.shape[1]):
+        np.minimum(lo, q[:, k], out=lo)
+        np.maximum(hi, q[:, k], out=hi)
+    # the low corner lowered by 0.5 % of a bin: a point in the cell up to rounding is at
+    # most 1 / 1.01 + 0.005 bins above it; clipped into the grid (a clipped cell may get
+    # pairs it cannot hold, rejected by the box test)
+    i0 = np.floor((lo - origin) / g - 0.005).astype(np.int64)
+    ckey = np.clip(i0, 0, dims - 1) @ strides
+    start = np.searchsorted(keys, ckey, side="left")
+    num = np.searchsorted(keys, ckey, side="right") - start
+    c = np.repeat(np.arange(len(cells)), num)
+    pt = owner[np.repeat(start, num) + np.arange(len(c)) - np.repeat(np.cumsum(num) - num, num)]
+    p = points[pt]
+    slack = 1e-9 * g
+    lo, hi = lo[c] - slack, hi[c] + slack
+    box = (p[:, 0] >= lo[:, 0]) & (p[:, 0] <= hi[:, 0])
+    for k in range(1, d):
+        box &= (p[:, k] >= lo[:, k]) & (p[:, k] <= hi[:, k])
+    c, pt = c[box], pt[box]
+    found[pt[_inside(x, cells[c], points[pt], tol)]] = True
+    return found
+
+
+def samples_in_stars(
+    x: Float,
+    near_vertex: Bool,
+    v2c_offsets: Int,
+    v2c: Int,
+    cells: Int,
+    points: Float,
+    size: float,
+    tol: float = 1e-12,
+) -> tuple[Bool, Bool]:
+    """Which points lie in a cell at their nearest flagged vertex; which are left to search.
+
+    A cell containing a point has its vertices within its diameter (at most ``size``) of
+    it, all flagged when ``near_vertex`` flags every vertex of such cells: a point farther
+    than ``size`` from every flagged vertex is in no cell. The others are tested against
+    the cells around their nearest flagged vertex (on lattices and Delaunay meshes almost
+    always one of them holds the point); those left get the exhaustive search
+    (:func:`cells_near_points`, :func:`points_in_cells`).
+
+    Parameters
+    ----------
+    x
+        Vertex coordinates ``(num_vertices, d)``.
+    near_vertex
+        The flagged vertices ``(num_vertices,)``.
+    v2c_offsets, v2c
+        Vertex -> cell adjacency list.
+    cells
+        Cell -> vertex connectivity ``(num_cells, d + 1)``.
+    points
+        The points ``(n, d)``.
+    size
+        At least the diameter of every cell with all vertices flagged.
+    tol
+        As in :meth:`CellLocator.contains`.
+
+    Returns
+    -------
+    found
+        Points in a cell at their nearest flagged vertex ``(n,)``.
+    left
+        Points within ``size`` of a flagged vertex but not found ``(n,)``.
+    """
+    from scipy.spatial import cKDTree
+
+    n = len(points)
+    v = np.flatnonzero(near_vertex)
+    found = np.zeros(n, dtype=bool)
+    if len(v) == 0 or n == 0:
+        return found, found.copy()
+    tree = cKDTree(x[v], balanced_tree=False, compact_nodes=False)  # built for one query
+    dist, i = tree.query(points, distance_upper_bound=1.01 * max(float(size), 1e-300))
+    close = np.isfinite(dist)
+    pid, vid = np.flatnonzero(close), v[i[close]]
+    start = v2c_offsets[vid]
+    num = v2c_offsets[vid + 1] - start
+    pt = np.repeat(pid, num)
+    c = v2c[np.repeat(start, num) + np.arange(len(pt)) - np.repeat(np.cumsum(num) - num, num)]
+    found[pt[_inside(x, cells[c], points[pt], tol)]] = True
+    return found, close & ~found
 
 
 class CellLocator:
@@ -246,28 +411,66 @@ class CellLocator:
         if allowed is not None:
             keep = allowed[c]
             pt, c = pt[keep], c[keep]
-        a = self.x[self.cells[c, 0]]
-        p = points[pt]
-        if d == 2:
-            b, e = self.x[self.cells[c, 1]] - a, self.x[self.cells[c, 2]] - a
-            q = p - a
-            det = b[:, 0] * e[:, 1] - e[:, 0] * b[:, 1]
-            l1 = q[:, 0] * e[:, 1] - e[:, 0] * q[:, 1]
-            l2 = b[:, 0] * q[:, 1] - q[:, 0] * b[:, 1]
-            with np.errstate(divide="ignore", invalid="ignore"):
-                lam = np.column_stack([l1 / det, l2 / det])
-        else:
-            J = (self.x[self.cells[c, 1:]] - a[:, None, :]).transpose(0, 2, 1)  # (k, d, d)
-            ok_det = np.abs(np.linalg.det(J)) > 0
-            lam = np.full((len(c), d), -np.inf)
-            lam[ok_det] = np.linalg.solve(J[ok_det], (p - a)[ok_det][..., None])[..., 0]
-        rest = 1.0 - lam[:, 0]
-        for k in range(1, d):
-            rest = rest - lam[:, k]
-        inside = (lam >= -tol).all(axis=1) & (rest >= -tol)
+        inside = _inside(self.x, self.cells[c], points[pt], tol)
         found = np.zeros(n, dtype=bool)
         found[pt[inside]] = True
         return found
+
+
+def boundary_samples(comm: MPI.Comm, boundary: Boundary) -> Float:
+    """The samples of Gamma that :func:`containment_problems` locates, ``(512, gdim)``
+    (collective: a failure of the boundary's sampler is raised on every rank)."""
+    pts = collective_call(comm, "sampling the boundary", boundary.sample, 512)
+    return np.asarray(pts, dtype=np.float64)
+
+
+def cells_near_points(
+    x: Float, cells: Int, near_vertex: Bool, points: Float, size: float
+) -> npt.NDArray[np.intp]:
+    """Rows of ``cells`` that may contain one of ``points``: a superset, cheap to find.
+
+    A cell containing a point ``p`` has all its vertices within its diameter of ``p``, at
+    most ``size``: on a grid of bins of side ``size`` (and 1 % more, for points on a facet
+    up to rounding), each vertex's bin is next to ``p``'s along every axis. The vertices
+    flagged ``near_vertex`` in the bins next to the points' bins are marked, and the cells
+    with all vertices marked are returned. A :class:`CellLocator` of these few cells then
+    answers exactly what one of all ``cells`` would.
+
+    Parameters
+    ----------
+    x
+        Vertex coordinates ``(num_vertices, d)``.
+    cells
+        Cells as vertex indices ``(m, d + 1)``.
+    near_vertex
+        Vertices that may belong to a cell containing a point ``(num_vertices,)`` (a cell
+        with an unflagged vertex is left out).
+    points
+        The points ``(n, d)``.
+    size
+        At least the diameter of every cell with all vertices flagged.
+    """
+    v = np.flatnonzero(near_vertex)
+    if len(v) == 0 or len(points) == 0 or len(cells) == 0:
+        return np.zeros(0, dtype=np.intp)
+    d = x.shape[1]
+    g = 1.01 * max(float(size), 1e-300)
+    origin = points.min(axis=0) - 2.0 * g
+    pij = np.floor((points - origin) / g).astype(np.int64)  # >= 2 on every axis
+    dims = pij.max(axis=0) + 3
+    strides = np.cumprod(np.concatenate([[1], dims[:0:-1]]))[::-1]
+    offsets = np.stack(np.meshgrid(*([np.arange(-1, 2)] * d), indexing="ij"), -1).reshape(-1, d)
+    keys = np.sort(((pij[:, None, :] + offsets[None]) @ strides).ravel())
+    vij = np.floor((x[v] - origin) / g).astype(np.int64)
+    ok = (vij >= 0).all(axis=1) & (vij < dims).all(axis=1)
+    vkey = vij @ strides
+    slot = np.minimum(np.searchsorted(keys, vkey), len(keys) - 1)
+    mark = np.zeros(len(near_vertex), dtype=bool)
+    mark[v[ok & (keys[slot] == vkey)]] = True
+    inside = mark[cells[:, 0]]
+    for k in range(1, cells.shape[1]):
+        inside &= mark[cells[:, k]]
+    return np.flatnonzero(inside)
 
 
 def containment_problems(
@@ -291,10 +494,16 @@ def containment_problems(
     -------
     The problem on rank 0 when samples of Gamma are in no cell of any rank, else empty.
     """
-    pts = collective_call(comm, "sampling the boundary", boundary.sample, 512)
+    pts = boundary_samples(comm, boundary)
     allowed = np.zeros(len(locator.cells), dtype=bool)
     allowed[cells] = True
-    found = locator.contains(np.asarray(pts, dtype=np.float64), allowed).astype(np.int32)
+    return missing_samples_problems(comm, pts, locator.contains(pts, allowed))
+
+
+def missing_samples_problems(comm: MPI.Comm, pts: Float, found: Bool) -> list[Problem]:
+    """The problem (on rank 0) of the samples ``pts`` of Gamma that no rank ``found`` in its
+    cells, else empty (collective)."""
+    found = found.astype(np.int32)
     found = comm.allreduce(found, op=MPI.SUM) if comm.size > 1 else found
     missing = pts[found == 0]
     if len(missing) and comm.rank == 0:
@@ -310,6 +519,94 @@ def containment_problems(
     return []
 
 
+class TetMeasures(NamedTuple):
+    """What the output checks measure of the moved tetrahedra, computed once
+    (:func:`tet_measures`) for :func:`conforming_problems` and :func:`low_quality_cells`."""
+
+    cells: Int
+    """The moved cells ``(m, 4)``."""
+    volume0: Float
+    """Signed volumes in the background ``(m,)``."""
+    volume: Float
+    """Signed volumes of the images ``(m,)``."""
+    diameter0: Float
+    """Longest edges in the background ``(m,)``."""
+    angles: Float
+    """Dihedral angles (radians) of the images ``(m, 6)``."""
+
+
+def _soa_cross(u: list[Float], v: list[Float]) -> list[Float]:
+    """Cross products of vectors given as their 3 component arrays."""
+    return [
+        u[1] * v[2] - u[2] * v[1],
+        u[2] * v[0] - u[0] * v[2],
+        u[0] * v[1] - u[1] * v[0],
+    ]
+
+
+def _soa_dot(u: list[Float], v: list[Float]) -> Float:
+    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+
+
+def _soa_sub(u: list[Float], v: list[Float]) -> list[Float]:
+    return [u[0] - v[0], u[1] - v[1], u[2] - v[2]]
+
+
+def _soa_det6(p: list[list[Float]]) -> Float:
+    """``6 V`` of tetrahedra with corners ``p[vertex][coordinate]`` ``(m,)``."""
+    d = [_soa_sub(p[k], p[0]) for k in (1, 2, 3)]
+    return _soa_dot(d[0], _soa_cross(d[1], d[2]))
+
+
+def tet_measures(x: Float, y: Float, moved: Bool, cells: Int) -> TetMeasures:
+    """Volumes, diameters and dihedral angles of the moved tetrahedra among ``cells``.
+
+    The arithmetic of :func:`~dolfinx_universal._tetrahedron.signed_volumes`,
+    :func:`~dolfinx_universal._tetrahedron.cell_diameters` and
+    :func:`~dolfinx_universal._tetrahedron.dihedral_angles` (bitwise the same values), on
+    the corners' coordinates as contiguous arrays (half the time of the strided
+    ``(m, 6, 3)`` arrays), each corner gathered once and the images' volumes shared by the
+    inversion test and the angles.
+
+    Parameters
+    ----------
+    x, y
+        Background vertex positions and their images ``(num_vertices, 3)``.
+    moved
+        Vertices whose image differs from their position ``(num_vertices,)``.
+    cells
+        Kept tetrahedra that may have moved ``(k, 4)``.
+    """
+    from ._tetrahedron import EDGES, FACETS
+
+    mv = moved[cells[:, 0]]
+    for k in range(1, 4):
+        mv |= moved[cells[:, k]]
+    cells = cells[mv]
+    # corners as [vertex][coordinate] arrays (m,), gathered from the coordinate columns
+    cols = [np.ascontiguousarray(cells[:, k]) for k in range(4)]
+    q = [[x[:, i][c] for i in range(3)] for c in cols]
+    p = [[y[:, i][c] for i in range(3)] for c in cols]
+
+    def sq(u: list[Float]) -> Float:
+        return u[0] ** 2 + u[1] ** 2 + u[2] ** 2
+
+    d2 = np.zeros(len(cells))
+    for i, j in EDGES:  # the longest edge, by squared lengths (sqrt is monotone)
+        np.maximum(d2, sq(_soa_sub(q[j], q[i])), out=d2)
+    v6 = _soa_det6(p)
+    n = [_soa_cross(_soa_sub(p[b], p[a]), _soa_sub(p[c], p[a])) for a, b, c in FACETS]
+    av6 = np.abs(v6)
+    angles = np.empty((len(cells), 6))
+    for e, ((i, j), (k, m)) in enumerate(zip(EDGES, EDGES[::-1])):
+        nk, nl = n[k], n[m]
+        length = np.sqrt(sq(_soa_sub(p[j], p[i])))
+        theta = np.arctan2(av6 * length, -_soa_dot(nk, nl))
+        undefined = (sq(nk) == 0.0) | (sq(nl) == 0.0)
+        angles[:, e] = np.where(undefined, np.nan, theta)
+    return TetMeasures(cells, _soa_det6(q) / 6.0, v6 / 6.0, np.sqrt(d2), angles)
+
+
 def conforming_problems(
     x: Float,
     y: Float,
@@ -317,6 +614,7 @@ def conforming_problems(
     cells: Int,
     in_kept: Bool,
     outer_vertices: Int,
+    measures: TetMeasures | None = None,
 ) -> list[Problem]:
     """Local problems with the conforming triangles: inversion, degeneracy, moved outer boundary.
 
@@ -332,16 +630,21 @@ def conforming_problems(
         Vertices of kept triangles near Gamma ``(num_vertices,)``.
     outer_vertices
         Vertices on the boundary of the background ``(k,)``.
+    measures
+        Tetrahedra: :func:`tet_measures` of ``cells``, if computed already.
 
     Returns
     -------
     This rank's problems.
     """
     problems = []
-    cells = cells[moved[cells].any(axis=1)]  # unmoved cells keep their shape
     k = cell_kernels(cells.shape[1] - 1)
-    a0, a1 = k.signed_measures(x, cells), k.signed_measures(y, cells)
-    d = k.cell_diameters(x, cells)
+    if measures is not None:
+        cells, a0, a1, d = measures[:4]
+    else:
+        cells = cells[moved[cells].any(axis=1)]  # unmoved cells keep their shape
+        a0, a1 = k.signed_measures(x, cells), k.signed_measures(y, cells)
+        d = k.cell_diameters(x, cells)
     # degenerate: measure below 1e-10 of the diameter's square or cube (relative)
     inverted = (np.sign(a1) != np.sign(a0)) | (np.abs(a1) <= 1e-10 * d**k.tdim)
     if inverted.any():
@@ -368,6 +671,75 @@ def conforming_problems(
             )
         )
     return problems
+
+
+class TopologyMessages(NamedTuple):
+    """The messages of the Gamma_h topology checks of both dimensions, in one place:
+    :func:`gamma_h_topology` (triangles: loops of positive edges following curves) and
+    :func:`~dolfinx_universal.gamma_tet.surface_topology` (tetrahedra: closed pieces of
+    positive faces following surfaces). Each returns a :class:`Problem` template
+    (``{where}`` and ``{count}`` filled in by :func:`raise_collective`)."""
+
+    part: str
+    """A connected part of Gamma: "curve" or "surface"."""
+    facet: str
+    """"edge" or "face"."""
+    loop: str
+    """A closed part of Gamma_h: "loop" or "piece"."""
+    cells: str
+    """"triangles" or "tetrahedra"."""
+
+    def empty(self, num_parts: int) -> str:
+        return (
+            f"Gamma_h is empty: no positive {self.facet} follows any of the {num_parts} "
+            f"{self.part}s of the boundary near {{where}}; the background is too coarse for "
+            "the domain there; refine near those points"
+        )
+
+    def joined(self, pairs: list[tuple[int, int]]) -> str:
+        """Parts ``(i, j)`` of Gamma followed by one closed part of Gamma_h."""
+        names = ", ".join(f"{i} and {j}" for i, j in pairs[:3])
+        return (
+            f"Gamma_h joins different {self.part}s of the boundary ({self.part}s {names}) "
+            "near {where}: the gap between them is not resolved by the background; refine "
+            "to below the gap there"
+        )
+
+    def lost(self, k: int, first: Float) -> str:
+        """Part ``k`` of Gamma followed by nothing (``first``: one of its samples)."""
+        return (
+            f"{self.part} {k} of the boundary (near {where(first)}) is lost: no {self.loop} "
+            "of Gamma_h follows it, so the mesh would ignore that part of the boundary (a "
+            f"body or feature smaller than the background's {self.cells}); refine the "
+            "background near it (places: {where})"
+        )
+
+    def split(self, k: int, n: int) -> str:
+        """Part ``k`` of Gamma followed by ``n`` closed parts of Gamma_h."""
+        return (
+            f"{self.part} {k} of the boundary is split into {n} {self.loop}s of Gamma_h: a "
+            "neck or thin part of the domain (or a gap) is narrower than the background's "
+            f"{self.cells} near {{where}}; refine the background there"
+        )
+
+    def wrong_side(self, k: int) -> str:
+        return (
+            f"Gamma_h around {self.part} {k} keeps the wrong side of it near {{where}}: the "
+            "background is too coarse for the domain there; refine near it"
+        )
+
+    def pieces(self, pieces: int, expected: int) -> str:
+        return (
+            f"the kept {self.cells} form {pieces} connected pieces where the domain has "
+            f"{expected}, near {{where}}: refine the background near them"
+        )
+
+
+TOPOLOGY_MESSAGES = {
+    2: TopologyMessages("curve", "edge", "loop", "triangles"),
+    3: TopologyMessages("surface", "face", "piece", "tetrahedra"),
+}
+"""The messages of the Gamma_h topology checks by topological dimension."""
 
 
 def _loops(gids: npt.NDArray[np.int64]) -> tuple[int, npt.NDArray[np.int64]]:
@@ -441,17 +813,11 @@ def _topology(data: list, samples: CurveSamples, far_kept: bool) -> tuple[list[P
     b = np.concatenate([d[2] for d in data]).reshape(-1, 2)
     c = np.concatenate([d[3] for d in data]).reshape(-1, 2)
     ncurves = samples.num_curves
+    messages = TOPOLOGY_MESSAGES[2]
     problems: list[Problem] = []
     if len(g) == 0:
         return (
-            [
-                Problem(
-                    f"Gamma_h is empty: no positive edge follows any of the {ncurves} curves of "
-                    "the boundary near {where}; the background is too coarse for the domain "
-                    "there; refine near those points",
-                    samples.points,
-                )
-            ],
+            [Problem(messages.empty(ncurves), samples.points)],
             0,
             int(far_kept),
         )
@@ -472,32 +838,14 @@ def _topology(data: list, samples: CurveSamples, far_kept: bool) -> tuple[list[P
     mixed = curve != main[loop]
     if mixed.any():
         pairs = sorted({(int(main[k]), int(j)) for k, j in zip(loop[mixed], curve[mixed])})
-        problems.append(
-            Problem(
-                "Gamma_h joins different curves of the boundary (curves "
-                + ", ".join(f"{i} and {j}" for i, j in pairs[:3])
-                + ") near {where}: the gap between them is not resolved by the background; "
-                "refine to below the gap there",
-                mid[mixed],
-                int(mixed.sum()),
-            )
-        )
+        problems.append(Problem(messages.joined(pairs), mid[mixed], int(mixed.sum())))
     per_curve = np.bincount(main, minlength=ncurves)
     for k in np.flatnonzero(per_curve != 1):
         pts = samples.points[samples.labels == k]
         if per_curve[k] == 0:
-            text = (
-                f"curve {k} of the boundary (near {where(pts[:1])}) is lost: no loop of "
-                "Gamma_h follows it, so the mesh would ignore that part of the boundary (a "
-                "body or feature smaller than the background's triangles); refine the "
-                "background near it (places: {where})"
-            )
+            text = messages.lost(int(k), pts[:1])
         else:
-            text = (
-                f"curve {k} of the boundary is split into {per_curve[k]} loops of Gamma_h: a "
-                "neck or thin part of the domain (or a gap) is narrower than the background's "
-                "triangles near {where}; refine the background there"
-            )
+            text = messages.split(int(k), int(per_curve[k]))
             sel = np.isin(loop, np.flatnonzero(main == k))
             pts = _pinch_points(mid[sel], loop[sel], pts)
         problems.append(Problem(text, pts))
@@ -506,20 +854,13 @@ def _topology(data: list, samples: CurveSamples, far_kept: bool) -> tuple[list[P
     for k in np.flatnonzero(wrong):
         problems.append(
             Problem(
-                f"Gamma_h around curve {int(main[k])} keeps the wrong side of it near "
-                "{where}: the background is too coarse for the domain there; refine near it",
+                messages.wrong_side(int(main[k])),
                 mid[loop == k],
             )
         )
     pieces = int(inside.sum()) + int(far_kept)
     if not problems and pieces != samples.expected_pieces:
-        problems.append(
-            Problem(
-                f"the kept triangles form {pieces} connected pieces where the domain has "
-                f"{samples.expected_pieces}, near {{where}}: refine the background near them",
-                mid,
-            )
-        )
+        problems.append(Problem(messages.pieces(pieces, samples.expected_pieces), mid))
     return problems, nloops, pieces
 
 
@@ -539,7 +880,7 @@ def _pinch_points(mid: Float, loop: npt.NDArray[np.int64], fallback: Float) -> F
 
 
 def low_quality_cells(
-    y: Float, cells: npt.NDArray, min_angle_deg: float
+    y: Float, cells: npt.NDArray, min_angle_deg: float, angles: Float | None = None
 ) -> tuple[Problem | None, float, float]:
     """Conforming cells whose smallest angle (dihedral angle in 3D) is below a floor.
 
@@ -552,6 +893,8 @@ def low_quality_cells(
         angles).
     min_angle_deg
         The floor in degrees (0 disables the check).
+    angles
+        The cells' angles in radians, if computed already (:func:`tet_measures`).
 
     Returns
     -------
@@ -563,8 +906,10 @@ def low_quality_cells(
     if len(cells) == 0:
         return None, 180.0, 0.0
     k = cell_kernels(cells.shape[1] - 1)
-    ang = np.degrees(k.angles(y, cells))
-    small = ang.min(axis=1)
+    ang = np.degrees(k.angles(y, cells) if angles is None else angles)
+    small = ang[:, 0].copy()  # column by column: reductions along a short axis are slow
+    for j in range(1, ang.shape[1]):
+        np.minimum(small, ang[:, j], out=small)
     lo, hi = float(small.min()), float(ang.max())
     bad = small < min_angle_deg
     if not bad.any():

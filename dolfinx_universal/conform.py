@@ -18,17 +18,25 @@ from ._geometry import Bool, Float, Int
 from .background import GRADATION, vertex_sizes
 from .checks import (
     CellLocator,
+    TetMeasures,
+    boundary_samples,
+    cells_near_points,
     classification_problems,
     conforming_problems,
     containment_problems,
     gamma_h_topology,
     low_quality_cells,
+    missing_samples_problems,
+    points_in_cells,
     require_kept,
+    samples_in_stars,
+    tet_measures,
 )
 from .classify import positively_cut
 from .dimensions import cell_kernels
 from .gamma_tet import SurfaceParts, all_outside_faces, sampled_parts, surface_topology
 from .pipeline import (
+    BandCells,
     band_cells,
     classify_near,
     gamma_h,
@@ -36,6 +44,7 @@ from .pipeline import (
     perturb,
     project_band,
     relocate,
+    scan_cells,
 )
 from .relax import movable_vertices, relax_vertices
 from .validation import MeshingError, Problem, collective_call, raise_collective
@@ -257,8 +266,9 @@ class UniversalMesh:
     (Rangarajan & Lew 2014).
 
     Everything that depends only on the background (vertex arrays, connectivities, mesh
-    sizes, parameters) is computed here; :meth:`conform` then costs a classification, the
-    projections of the vertices near Gamma and the DOLFINx mesh construction.
+    sizes, parameters) is computed here (tetrahedra: the faces at the first
+    :meth:`straight_map`); :meth:`conform` then costs a classification, the projections of
+    the vertices near Gamma and the DOLFINx mesh construction.
 
     Parameters
     ----------
@@ -362,17 +372,57 @@ class UniversalMesh:
         self.alpha = float(alpha)
         # the inward push of the band's inside vertices by M_h (0: snap only)
         self._push = self.alpha if kernels.inward_push else 0.0
-        fdim = tdim - 1
-        for a, b in ((tdim, fdim), (fdim, tdim), (fdim, 0), (0, tdim)):
-            topo.create_connectivity(a, b)
-        self._c2f = topo.connectivity(tdim, fdim).array.reshape(-1, tdim + 1)
-        f2c = topo.connectivity(fdim, tdim)
-        self._f2c_offsets, self._f2c = f2c.offsets, f2c.array
-        ext = dmesh.exterior_facet_indices(topo)
-        self._outer_vertices = np.unique(topo.connectivity(fdim, 0).array.reshape(-1, tdim)[ext])
+        self._facet_arrays: tuple[Int, Int, Int, Int] | None = None
+        if tdim == 2:
+            self._facets()
         n2v = np.empty(len(background.geometry.x), dtype=np.int32)
         n2v[v2n] = np.arange(nv, dtype=np.int32)
         self._n2v = n2v
+
+    def _facets(self) -> tuple[Int, Int, Int, Int]:
+        """Cell -> facet connectivity, facet -> cell adjacency (offsets, cells) and the
+        vertices on the background's boundary (collective at the first call).
+
+        Tetrahedra: built at the first :meth:`straight_map` (DOLFINx's faces of 1e6
+        tetrahedra take seconds, and its first ``create_submesh`` builds them anyway),
+        not by the constructor. Triangles: by the constructor.
+        """
+        if self._facet_arrays is None:
+            topo, tdim = self.background.topology, self.tdim
+            fdim = tdim - 1
+            for a, b in ((tdim, fdim), (fdim, tdim), (fdim, 0), (0, tdim)):
+                topo.create_connectivity(a, b)
+            c2f = topo.connectivity(tdim, fdim).array.reshape(-1, tdim + 1)
+            f2c = topo.connectivity(fdim, tdim)
+            ext = dmesh.exterior_facet_indices(topo)
+            outer = np.unique(topo.connectivity(fdim, 0).array.reshape(-1, tdim)[ext])
+            self._facet_arrays = (c2f, f2c.offsets, f2c.array, outer)
+        return self._facet_arrays
+
+    @property
+    def _v2c(self) -> tuple[Int, Int]:
+        """Vertex -> cell adjacency list (offsets, cells), created by :meth:`_facets`."""
+        self._facets()
+        v2c = self.background.topology.connectivity(0, self.tdim)
+        return v2c.offsets, v2c.array
+
+    @property
+    def _c2f(self) -> Int:
+        """Cell -> facet connectivity ``(num_cells, tdim + 1)`` (:meth:`_facets`)."""
+        return self._facets()[0]
+
+    @property
+    def _f2c_offsets(self) -> Int:
+        return self._facets()[1]
+
+    @property
+    def _f2c(self) -> Int:
+        return self._facets()[2]
+
+    @property
+    def _outer_vertices(self) -> Int:
+        """Vertices on the background's boundary ``(k,)`` (:meth:`_facets`)."""
+        return self._facets()[3]
 
     def straight_map(self, boundary: Boundary) -> StraightMap:
         """Classify the background against ``boundary`` and compute ``M_h`` (collective).
@@ -390,6 +440,7 @@ class UniversalMesh:
                 f"a {gdim}D boundary cannot be meshed on a {self.tdim}D background: curves "
                 "need a triangle background, surfaces a tetrahedron background"
             )
+        self._facets()  # collective at the first call
         timings: dict[str, float] = {}
         t0 = time.perf_counter()
         s, band = classify_near(comm, boundary, x, self.h, self.R_r)
@@ -398,34 +449,47 @@ class UniversalMesh:
         s, phi, closest, normal = project_band(comm, boundary, x, s, band, self.h)
         timings["project"] = time.perf_counter() - t1
         t2 = time.perf_counter()
-        near_all, near_cells = band_cells(self.background.topology, band, self._nco, c2v)
+        bc: BandCells | None = None
+        if self.tdim == 3:  # one scan of the cells for the band and the kept cells
+            bc = scan_cells(c2v, band, s, self._nco)
+            near_all, near_cells, near_cv = bc.cells, bc.owned, bc.cv[: bc.num_owned]
+        else:
+            near_all, near_cells = band_cells(self.background.topology, band, self._nco, c2v)
+            near_cv = c2v[near_cells]
         xp, phi, s, num_relocated = perturb(
-            comm, imv, x, phi, s, closest, c2v[near_cells], self.eta, self.h
+            comm, imv, x, phi, s, closest, near_cv, self.eta, self.h
         )
-        pe = gamma_h(imv, s, c2v, near_cells)
+        pe = gamma_h(imv, s, c2v, near_cells, bc)
         require_kept(comm, pe.kept[: self._nco], boundary)
-        if self.tdim == 3:
-            pe, repaired = self._repair_faces(s, phi, xp, closest, pe, near_cells)
+        if bc is not None:
+            pe, repaired = self._repair_faces(s, phi, xp, closest, pe, near_cells, bc)
             num_relocated += repaired
         max_theta, num_loops, num_pieces = self._check_gamma_h(
-            boundary, xp, s, phi, pe, band, near_cells
+            boundary, xp, s, phi, pe, band, near_cells, near_cv
         )
         y, moved = map_band(
             x, xp, phi, closest, normal, pe.on_gamma, self.h, self.R_r, self._push, band
         )
+        outer = self._outer_vertices
+        # tetrahedra without relaxation: the inversion and quality checks measure the same
+        # moved cells of the same images, once
+        measures = (
+            tet_measures(x, y, moved, pe.near_kept_cv)
+            if bc is not None and not self.relax
+            else None
+        )
         raise_collective(
-            comm,
-            conforming_problems(x, y, moved, c2v[pe.near_kept], pe.in_kept, self._outer_vertices),
+            comm, conforming_problems(x, y, moved, pe.near_kept_cv, pe.in_kept, outer, measures)
         )
         if self.relax:
             t_relax = time.perf_counter()
-            movable = movable_vertices(imv, s, band, pe.on_gamma, pe.in_kept, self._outer_vertices)
+            movable = movable_vertices(imv, s, band, pe.on_gamma, pe.in_kept, outer)
             y, xp, moved = relax_vertices(
-                comm, imv, boundary._closest_normal, x, xp, y, c2v[pe.near_kept], movable,
+                comm, imv, boundary._closest_normal, x, xp, y, pe.near_kept_cv, movable,
                 pe.on_gamma, normal, phi, self.h,
             )[:3]  # fmt: skip
             timings["relax"] = time.perf_counter() - t_relax
-        angle_range = self._check_quality(y, moved, c2v[pe.near_kept])
+        angle_range = self._check_quality(y, moved, pe.near_kept_cv, measures)
         timings["map"] = time.perf_counter() - t2
         return StraightMap(
             sign=s, phi=phi, closest=closest, x=xp, y=y, on_positive_edge=pe.on_gamma,
@@ -444,6 +508,7 @@ class UniversalMesh:
         pe: PositiveFacets,
         band: Int,
         near_cells: npt.NDArray[np.int32],
+        near_cv: Int,
     ) -> tuple[float, int, int]:
         """Raise for a bad classification, Gamma outside the background or a wrong Gamma_h
         topology (the conditions of the method; collective).
@@ -458,16 +523,21 @@ class UniversalMesh:
         comm, imv = self.comm, self._imv
         # Containment first: a domain leaving the background also breaks Gamma_h there, and
         # "refine" would point the wrong way.
-        cells = near_cells.astype(np.int32)
         if self.tdim == 2:  # the locator of all cells, cached for moving domains
-            locator = self._locator
-        else:  # 3D: only the cells that can hold a point of Gamma (each vertex within its
-            # size h, at least the diameter of its cells, of Gamma): a thin layer of the band
-            cv = self._c2v[cells]
-            near = (np.abs(phi[cv]) <= self.h[cv]).all(axis=1)
-            locator = CellLocator(self._x, cv[near])
-            cells = np.arange(int(near.sum()), dtype=np.int32)
-        raise_collective(comm, containment_problems(locator, boundary, cells, comm))
+            cells = near_cells.astype(np.int32)
+            raise_collective(comm, containment_problems(self._locator, boundary, cells, comm))
+        else:  # 3D: only the cells that can hold a sample of Gamma (each vertex within its
+            # size h, at least the diameter of its cells, of Gamma, and next to a sample)
+            pts = boundary_samples(comm, boundary)
+            near_v = np.abs(phi) <= self.h
+            size = float(self.h[near_v].max()) if near_v.any() else 0.0
+            v2c_offsets, v2c = self._v2c
+            found, left = samples_in_stars(self._x, near_v, v2c_offsets, v2c, self._c2v, pts, size)
+            if left.any():  # the exhaustive search, rarely needed
+                r = np.flatnonzero(left)
+                cv = near_cv[cells_near_points(self._x, near_cv, near_v, pts[r], size)]
+                found[r] = points_in_cells(self._x, cv, pts[r], size)
+            raise_collective(comm, missing_samples_problems(comm, pts, found))
         problems, theta = classification_problems(
             xp, s, phi, pe, self._c2v, self._c2f, self._f2c_offsets, self._f2c, imv.size_local,
             self._x,
@@ -499,6 +569,7 @@ class UniversalMesh:
         closest: Float,
         pe: PositiveFacets,
         near_cells: npt.NDArray[np.int32],
+        bc: BandCells,
     ) -> tuple[PositiveFacets, int]:
         """Tetrahedra: remove the interior faces with three vertices outside (collective).
 
@@ -521,7 +592,7 @@ class UniversalMesh:
             if moved == 0:
                 break
             total += moved
-            pe = gamma_h(self._imv, s, self._c2v, near_cells)
+            pe = gamma_h(self._imv, s, self._c2v, near_cells, bc)
         return pe, total
 
     def _surface_parts(self, boundary: Boundary, band_idx: npt.NDArray) -> SurfaceParts:
@@ -546,11 +617,19 @@ class UniversalMesh:
         return CellLocator(self._x, self._c2v)
 
     def _check_quality(
-        self, y: npt.NDArray[np.float64], moved: npt.NDArray[np.bool_], cells: npt.NDArray[np.int32]
+        self,
+        y: npt.NDArray[np.float64],
+        moved: npt.NDArray[np.bool_],
+        cells: Int,
+        measures: TetMeasures | None = None,
     ) -> tuple[float, float]:
-        """Report the moved ``cells`` below the quality floor; their global angle range."""
-        moved_cells = cells[moved[cells].any(axis=1)]
-        low, lo, hi = low_quality_cells(y, moved_cells, self.min_angle)
+        """Report the moved ``cells`` below the quality floor; their global angle range
+        (``measures``: those of the moved cells, computed already)."""
+        if measures is None:
+            moved_cells = cells[moved[cells].any(axis=1)]
+            low, lo, hi = low_quality_cells(y, moved_cells, self.min_angle)
+        else:
+            low, lo, hi = low_quality_cells(y, measures.cells, self.min_angle, measures.angles)
         self._report_quality(low)
         return self.comm.allreduce(lo, op=MPI.MIN), self.comm.allreduce(hi, op=MPI.MAX)
 

@@ -20,6 +20,7 @@ import numpy as np
 import numpy.typing as npt
 
 from ._geometry import Float, Int
+from .checks import TOPOLOGY_MESSAGES
 from .validation import Problem, collective_call
 
 if TYPE_CHECKING:
@@ -54,18 +55,25 @@ def conditioning_dihedral(x: Float, facets: Int, w: Int) -> Float:
     """
     if len(facets) == 0:
         return np.zeros(0)
-    p = x[facets]  # (m, 3, 3)
-    q = x[w]
+    # coordinates as contiguous (m,) arrays: norms along a short axis are slow in numpy
+    p = [[x[:, d][facets[:, i]] for d in range(3)] for i in range(3)]
+    q = [x[:, d][w] for d in range(3)]
+
+    def dot(u: list[Float], v: list[Float]) -> Float:
+        return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+
     out = np.zeros(len(facets))
     for i in range(3):  # the edge (a, b) of the face, c the face's third vertex
-        a, b, c = p[:, i], p[:, (i + 1) % 3], p[:, (i + 2) % 3]
-        e = b - a
-        e = e / np.linalg.norm(e, axis=1, keepdims=True)
-        u = c - a
-        v = q - a
-        u = u - (u * e).sum(axis=1, keepdims=True) * e
-        v = v - (v * e).sum(axis=1, keepdims=True) * e
-        cos = (u * v).sum(axis=1) / (np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1))
+        a, b, c = p[i], p[(i + 1) % 3], p[(i + 2) % 3]
+        e = [b[d] - a[d] for d in range(3)]
+        le = np.sqrt(dot(e, e))
+        e = [e[d] / le for d in range(3)]
+        u = [c[d] - a[d] for d in range(3)]
+        v = [q[d] - a[d] for d in range(3)]
+        ue, ve = dot(u, e), dot(v, e)
+        u = [u[d] - ue * e[d] for d in range(3)]
+        v = [v[d] - ve * e[d] for d in range(3)]
+        cos = dot(u, v) / (np.sqrt(dot(u, u)) * np.sqrt(dot(v, v)))
         out = np.maximum(out, np.arccos(np.clip(cos, -1.0, 1.0)))
     return out
 
@@ -181,6 +189,19 @@ def surface_parts(boundary: Boundary, n: int = 4096) -> SurfaceParts:
     )
 
 
+def _sorted_unique(key: Int) -> tuple[Int, Int, Int, Int]:
+    """``np.unique(key, return_inverse=True, return_counts=True)`` by a sort (numpy's
+    hashing unique is many times slower here), and the sort order ``(n,)``."""
+    order = np.argsort(key, kind="stable")
+    sk = key[order]
+    first = np.ones(len(sk), dtype=bool)
+    first[1:] = sk[1:] != sk[:-1]
+    inv = np.empty(len(key), dtype=np.int64)
+    inv[order] = np.cumsum(first) - 1
+    starts = np.flatnonzero(first)
+    return sk[starts], inv, np.diff(np.append(starts, len(sk))), order
+
+
 def _components(nodes: int, i: Int, j: Int) -> tuple[int, Int]:
     """Connected components of the graph with ``nodes`` nodes and edges ``(i, j)``."""
     from scipy.sparse import coo_matrix
@@ -246,13 +267,12 @@ def _topology(data: list, parts: SurfaceParts, far_kept: bool) -> tuple[list[Pro
     g = np.concatenate([d[0] for d in data]).reshape(-1, 3).astype(np.int64)
     a, b, c = (np.concatenate([d[k] for d in data]).reshape(-1, 3) for k in (1, 2, 3))
     nsurf = parts.num_surfaces
+    messages = TOPOLOGY_MESSAGES[3]
     if len(g) == 0:
         return (
             [
                 Problem(
-                    f"Gamma_h is empty: no positive face follows any of the {nsurf} surfaces "
-                    "of the boundary near {where}; the background is too coarse for the "
-                    "domain there; refine near those points",
+                    messages.empty(nsurf),
                     parts.points[:: max(1, len(parts.points) // 16)],
                 )
             ],
@@ -263,7 +283,7 @@ def _topology(data: list, parts: SurfaceParts, far_kept: bool) -> tuple[list[Pro
 
     problems: list[Problem] = []
     mid = (a + b + c) / 3.0
-    nodes, inv = np.unique(g, return_inverse=True)
+    nodes, inv, _, _ = _sorted_unique(g.ravel())
     f = inv.reshape(-1, 3)
     nf, nn = len(f), len(nodes)
     # Directed edges (i -> j) of every face; a closed oriented surface has each edge once
@@ -273,7 +293,7 @@ def _topology(data: list, parts: SurfaceParts, far_kept: bool) -> tuple[list[Pro
     face_of = np.repeat(np.arange(nf), 3)
     key = np.minimum(di, dj) * nn + np.maximum(di, dj)
     sign = np.where(di < dj, 1, -1)
-    ukey, einv, ecount = np.unique(key, return_inverse=True, return_counts=True)
+    ukey, einv, ecount, order = _sorted_unique(key)
     balance = np.bincount(einv, sign, minlength=len(ukey))
     bad_edge = (ecount != 2) | (balance != 0)
     if bad_edge.any():
@@ -287,24 +307,25 @@ def _topology(data: list, parts: SurfaceParts, far_kept: bool) -> tuple[list[Pro
                 int(bad_edge.sum()),
             )
         )
-    # Pieces: faces joined through shared edges.
-    order = np.argsort(einv, kind="stable")
+    # Pieces: faces joined through shared edges (consecutive in the edges' sort order).
     se = einv[order]
     same = np.flatnonzero(se[1:] == se[:-1])
     npieces, piece = _components(nf, face_of[order][same], face_of[order][same + 1])
     # Manifold vertices: the faces around a vertex form one fan (its link is connected).
     corner_v = f.ravel()
     corner_face = face_of
-    # link edges at vertex v: the opposite edge of each face at v, as nodes (v, u)
-    opp1 = f[:, [1, 2, 0]].ravel()
-    opp2 = f[:, [2, 0, 1]].ravel()
-    lk1 = corner_v * nn + opp1
-    lk2 = corner_v * nn + opp2
-    lnodes, linv = np.unique(np.concatenate([lk1, lk2]), return_inverse=True)
-    m = len(lk1)
-    nlink, llabel = _components(len(lnodes), linv[:m], linv[m:])
-    owner = lnodes // nn
-    fans = np.bincount(np.unique(owner * nlink + llabel) // nlink, minlength=nn)
+    # The link of vertex v: a node per edge (v, u), node 2 e + (v > u) of edge e; the face
+    # (v, p, q) joins the nodes of its edges (v, p) and (q, v).
+    up = di > dj  # the corner's vertex di is the larger end of its outgoing edge
+    prev = (np.arange(3 * nf).reshape(-1, 3)[:, [2, 0, 1]]).ravel()  # the edge into di
+    n1 = 2 * einv + up
+    n2 = 2 * einv[prev] + ~up[prev]
+    nlink, llabel = _components(2 * len(ukey), n1, n2)
+    lo, hi = ukey // nn, ukey % nn
+    owner = np.column_stack([lo, hi]).ravel()  # the vertex of node 2 e + side
+    comp_owner = np.zeros(nlink, dtype=np.int64)
+    comp_owner[llabel] = owner
+    fans = np.bincount(comp_owner, minlength=nn)
     pinched = np.flatnonzero(fans > 1)
     if len(pinched):
         at = np.isin(corner_v, pinched)
@@ -326,30 +347,23 @@ def _topology(data: list, parts: SurfaceParts, far_kept: bool) -> tuple[list[Pro
         - np.bincount(e_piece, minlength=npieces)
         + np.bincount(piece, minlength=npieces)
     )
-    surface = parts.labels[cKDTree(parts.points).query(mid)[1]]
-    votes = np.zeros((npieces, nsurf), dtype=np.int64)
-    np.add.at(votes, (piece, surface), 1)
-    main = votes.argmax(axis=1)
+    if nsurf == 1:  # every face follows the one surface (no tree of its samples needed)
+        surface = np.zeros(nf, dtype=np.int64)
+    else:
+        tree = cKDTree(parts.points, balanced_tree=False, compact_nodes=False)
+        surface = parts.labels[tree.query(mid)[1]]
+    votes = np.bincount(piece * nsurf + surface, minlength=npieces * nsurf)
+    main = votes.reshape(npieces, nsurf).argmax(axis=1)
     mixed = surface != main[piece]
     if mixed.any():
-        problems.append(
-            Problem(
-                "Gamma_h joins different surfaces of the boundary near {where}: the gap "
-                "between them is not resolved by the background; refine to below the gap "
-                "there",
-                mid[mixed],
-                int(mixed.sum()),
-            )
-        )
+        pairs = np.unique(main[piece[mixed]] * nsurf + surface[mixed])  # a few pairs
+        pairs_list = [(int(p // nsurf), int(p % nsurf)) for p in pairs]
+        problems.append(Problem(messages.joined(pairs_list), mid[mixed], int(mixed.sum())))
     per_surface = np.bincount(main, minlength=nsurf)
     for k in np.flatnonzero(per_surface != parts.pieces):
         pts = parts.points[parts.labels == k]
         if per_surface[k] == 0:
-            text = (
-                f"surface {k} of the boundary is lost: no piece of Gamma_h follows it (a body "
-                "or feature smaller than the background's cells); refine the background "
-                "near it (places: {where})"
-            )
+            text = messages.lost(int(k), pts[:1])
         elif per_surface[k] < parts.pieces[k]:
             text = (
                 f"surface {k} of the boundary has {parts.pieces[k]} pieces but Gamma_h "
@@ -357,11 +371,7 @@ def _topology(data: list, parts: SurfaceParts, far_kept: bool) -> tuple[list[Pro
                 "{where}; refine the background there"
             )
         else:
-            text = (
-                f"surface {k} of the boundary is split into {per_surface[k]} pieces of "
-                "Gamma_h: a neck or thin part is narrower than the background's cells near "
-                "{where}; refine the background there"
-            )
+            text = messages.split(int(k), int(per_surface[k]))
             pts = mid[np.isin(piece, np.flatnonzero(main == k))]
         problems.append(Problem(text, pts))
     chi_surface = np.bincount(main, chi, minlength=nsurf).astype(np.int64)
@@ -380,29 +390,22 @@ def _topology(data: list, parts: SurfaceParts, far_kept: bool) -> tuple[list[Pro
     inside = vol > 0
     wrong = inside != parts.encloses_domain[main]
     for k in np.flatnonzero(wrong):
-        problems.append(
-            Problem(
-                f"Gamma_h around surface {int(main[k])} keeps the wrong side of it near "
-                "{where}: the background is too coarse for the domain there; refine near it",
-                mid[piece == k],
-            )
-        )
+        problems.append(Problem(messages.wrong_side(int(main[k])), mid[piece == k]))
     pieces = int(inside.sum()) + int(far_kept)
     if not problems and pieces != parts.expected_pieces:
-        problems.append(
-            Problem(
-                f"the kept tetrahedra form {pieces} connected pieces where the domain has "
-                f"{parts.expected_pieces}, near {{where}}: refine the background near them",
-                mid,
-            )
-        )
+        problems.append(Problem(messages.pieces(pieces, parts.expected_pieces), mid))
     return problems, npieces, pieces
 
 
 def sampled_parts(comm: MPI.Comm, boundary: Boundary, spacing: float) -> SurfaceParts:
     """:func:`surface_parts` with about one sample per ``spacing**2`` of area, at least 4096
-    per surface (collective: a failure of the boundary's sampler is raised on every rank)."""
+    per surface (collective: a failure of the boundary's sampler is raised on every rank).
+
+    A boundary of one surface gets 4096: its samples only place messages (every positive
+    face follows that surface; the dense samples tell the surfaces of several apart)."""
     lo, hi = np.asarray(boundary.bounding_box(), dtype=np.float64)
     extent = float(np.max(hi - lo))
     n = int(min(max(4096, 4.0 * np.pi * (extent / max(spacing, 1e-300)) ** 2), 400_000))
+    if len(getattr(boundary, "components", None) or [None]) == 1:
+        n = 4096
     return collective_call(comm, "sampling the boundary", surface_parts, boundary, n)
