@@ -1,0 +1,406 @@
+"""Directional vertex relaxation of tetrahedra: the 3D branch of :func:`relax.relax_vertices`.
+
+The same max-min problem as in 2D (each movable vertex raises the worst quality of the
+tetrahedra around it, the vertices on Gamma slide along Gamma), solved along one direction
+per vertex and visit instead of by a compass search, in the spirit of the directional
+vertex relaxation of Rangarajan & Lew (SIAM J. Sci. Comput. 2017): along a line
+``p + t d`` the quality of every tetrahedron of the star is a closed-form function of
+``t``, ``q(t) = cbrt(s + t sigma)^2 / (L + t (2 beta + t))`` (the signed mean ratio over
+the target of :func:`_tetrahedron.star_quality`: ``s`` is ``6 V`` scaled, ``L`` the sum
+of the squared edge lengths over 3, both at ``t = 0``; ``sigma`` and ``beta`` two dot
+products with ``d``), so the worst quality along the line is found at a few step lengths
+for the cost of a few array passes each, without gathering or recomputing the facets.
+
+The direction is an ascent direction of the star's minimum: the sum of the unit gradients
+of the tetrahedra whose quality is within :data:`NEAR_WORST` of the worst one, each
+weighted by how close it is (``1 - (q - q_min) / NEAR_WORST``: a continuous function of the
+qualities, so that rounding cannot switch the direction). For one worst tetrahedron it is
+its gradient; at a kink between two it is their bisector, which raises both. A vertex on
+Gamma uses the direction's component in the tangent plane, and its candidates are
+projected onto Gamma and rated exactly.
+
+Each visit takes the first step length within :data:`relax.TIE` of the best and accepts
+it only if it raises the vertex's worst quality by more than ``TIE``, so the global
+minimum never falls, as in 2D. A vertex is visited again only while it keeps gaining or
+after a neighbour moved: a vertex that could not gain along its direction, or whose star
+meets the target with a margin (:data:`ACTIVE_BELOW`), waits until its star changes.
+
+Rank independence: every decision is taken on values reduced over the ranks (minimum
+qualities; the direction's sum, whose rounding may differ between partitions by a few
+ulps, far below the tie tolerance), as in 2D.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+from mpi4py import MPI
+
+import numpy as np
+
+from . import _tetrahedron as tet
+from ._geometry import Bool, Float, Int
+from .relax import (
+    GAMMA_EDGE_MAX,
+    INITIAL_STEP,
+    MAX_STEP,
+    TIE,
+    Relaxation,
+    _Sub,
+    coordinate_priority,
+)
+from .validation import collective_call
+
+if TYPE_CHECKING:
+    from dolfinx.common import IndexMap
+
+SWEEPS = 6
+"""Sweeps over all colours (fewer when a sweep moves nothing). On the 1e6-tetrahedron A15
+backgrounds of ``benchmarks/conform_floor_3d.py`` (ball r = 0.8, torus) 4 sweeps give the
+same extreme dihedral angles as 6 to within 0.5 degrees, 8 no better; 6 leaves a margin
+for harder surfaces."""
+ACTIVE_BELOW = 1.0
+"""A vertex is worked on only while its worst tetrahedron is below the target mean ratio
+(:data:`_tetrahedron.TARGET_MEAN_RATIO`, quality 1). The compass search used 1.05; with
+exact line searches 1.05 moves twice as many vertices for the same extreme angles on the
+1e6 ball and torus (34.96-117.98 against 34.96-118.11 degrees on the ball)."""
+NEAR_WORST = 0.02
+"""Tetrahedra within this quality of the star's worst one shape the direction. Measured on
+the six lattice/surface cases of ``tests/test_conform_3d.py`` (h = 0.25): 0.05 and 0.15
+leave the coarse torus on BCC at 29.2-29.8 and 32.8 degrees, 0.02 at 30.4-31.2 and
+0.01 at 31.7; the other cases move by about a degree either way. The bound is a loose
+one: the worst mean ratio is the same (0.753-0.756) in all these runs and in the compass
+search's, the dihedral angle of the worst cell is what it leaves free."""
+LINE_STEPS = np.array([2.0, 1.0, 0.5, 0.25, 0.125])
+"""Step lengths tried along the direction, in units of the vertex's step (which follows
+the last accepted step: 1.5 times its length)."""
+SLIDE_STEPS = np.array([1.0, 0.5, 0.25])
+"""Vertices on Gamma: fractions of the best step along the tangent line that are projected
+onto Gamma and rated exactly."""
+SLIDES = 6
+"""Vertices on Gamma also try this many tangent directions at their step (projected), as
+the compass search did: the projected gradient alone leaves the coarse torus on BCC about
+a degree lower."""
+COMPASS = 8
+"""Inside vertices that gain nothing along their direction (a kink of three or more worst
+tetrahedra, where the weighted sum is no ascent direction) try this many directions of a
+turned Fibonacci sphere (:func:`_tetrahedron.directions`)."""
+COMPASS_STEPS = np.array([1.0, 1.0 / 3.0])
+"""Steps of those directions, in units of the vertex's step."""
+MIN_STEP = 2e-2
+"""Smallest step, in units of ``h``."""
+_MAX_COLOURS = 62
+
+
+def vertex_colours_graph(sub: _Sub, cells: Int, priority: Float) -> Int:
+    """The colours of :func:`relax.vertex_colours`, on the vertex graph (collective).
+
+    The same Jones-Plassmann rounds with first fit, on the distinct pairs of vertices that
+    share a cell, dropping the pairs of coloured vertices from round to round: each round
+    costs in proportion to the vertices still uncoloured, not to all cells.
+    """
+    m = len(sub.vertices)
+    colour = np.full(m, -1, dtype=np.int64)
+    k = cells.shape[1]
+    pairs = [(i, j) for i in range(k) for j in range(k) if i != j]
+    src = np.concatenate([cells[:, i] for i, _ in pairs]).astype(np.int64)
+    dst = np.concatenate([cells[:, j] for _, j in pairs]).astype(np.int64)
+    keep = (src >= 0) & (dst >= 0)
+    key = np.sort(src[keep] * m + dst[keep])
+    key = key[np.diff(key, prepend=-1) != 0]  # distinct pairs, sorted by their first vertex
+    src, dst = key // m, key % m
+    while sub.comm.allreduce(bool((colour[: sub.size_local] < 0).any()), op=MPI.LOR):
+        unc = colour < 0
+        keep = unc[src]
+        src, dst = src[keep], dst[keep]
+        starts = np.flatnonzero(np.diff(src, prepend=-1))
+        vmax = np.full(m, -1.0)
+        if len(starts):
+            nb = np.where(unc[dst], priority[dst], -1.0)
+            vmax[src[starts]] = np.maximum.reduceat(nb, starts)
+        vmax = sub.reduce(vmax, "max")
+        new = np.flatnonzero(unc & (vmax < priority))
+        is_new = np.zeros(m, dtype=bool)
+        is_new[new] = True
+        sel = is_new[src]
+        s2, cd = src[sel], colour[dst[sel]]
+        st2 = np.flatnonzero(np.diff(s2, prepend=-1))
+        used = np.zeros(m, dtype=np.int64)  # bit c: a neighbour has colour c
+        if len(st2):
+            bits = np.where(cd >= 0, np.left_shift(1, np.maximum(cd, 0)), 0)
+            used[s2[st2]] = np.bitwise_or.reduceat(bits, st2)
+        if sub.map is not None:
+            nbits = sub.comm.allreduce(int(colour.max(initial=-1)) + 1, op=MPI.MAX)
+            b = 2 ** np.arange(nbits, dtype=np.int64)
+            flags = sub.reduce(((used[:, None] & b[None]) > 0).astype(np.float64), "max")
+            used = (flags > 0).astype(np.int64) @ b
+        un = used[new]
+        free = ~un & (un + 1)  # the lowest colour not used
+        if len(new) and (free.min() <= 0 or free.max() >= 2**_MAX_COLOURS):
+            raise RuntimeError(f"vertex colouring: more than {_MAX_COLOURS} colours needed")
+        colour[new] = np.round(np.log2(free.astype(np.float64))).astype(np.int64)
+    return colour
+
+
+def _segment_min(v: Float, starts: Int) -> Float:
+    """Minimum of each segment of the last axis."""
+    return np.minimum.reduceat(v, starts, axis=-1) if len(starts) else v[..., :0]
+
+
+def relax_tetrahedra(
+    comm: MPI.Comm,
+    imv: IndexMap,
+    closest_normal: Callable[[Float], tuple[Float, Float]],
+    x0: Float,
+    xp: Float,
+    y: Float,
+    cells: Int,
+    movable: Bool,
+    on_gamma: Bool,
+    normal: Float,
+    phi: Float,
+    h: Float,
+    sweeps: int | None = None,
+) -> Relaxation:
+    """:func:`relax.relax_vertices` for tetrahedra (collective; same arguments)."""
+    y0, y, xp = y, y.copy(), xp.copy()
+    if sweeps is None:
+        sweeps = SWEEPS
+    sub = _Sub(imv, np.flatnonzero(movable))
+    verts = sub.vertices
+    m = len(verts)
+    local = np.full(len(y), -1, dtype=np.int64)
+    local[verts] = np.arange(m)
+    csub = local[cells]
+    colour = vertex_colours_graph(sub, csub, coordinate_priority(x0[verts]))
+    ncol = comm.allreduce(int(colour.max(initial=-1)) + 1, op=MPI.MAX)
+    # Star entries (vertex, opposite facet), sorted by colour and vertex: each colour is a
+    # slice, each vertex a segment of it. The facet (a, b, c) is ordered so that
+    # (p, a, b, c) is positively oriented while p stays on the cell's side.
+    cell_idx, corner = np.nonzero(csub >= 0)
+    ev = csub[cell_idx, corner]
+    order = np.argsort(colour[ev] * max(m, 1) + ev, kind="stable")
+    cell_idx, corner, ev = cell_idx[order], corner[order], ev[order]
+    orient = np.sign(tet.signed_volumes(y, cells))
+    eo = orient[cell_idx]
+    f = cells[cell_idx[:, None], tet.FACETS[corner]]
+    neg = eo < 0
+    f[neg] = f[neg][:, [0, 2, 1]]
+    f0, f1, f2 = (np.ascontiguousarray(f[:, i]) for i in range(3))
+    flat = eo == 0  # no orientation to keep: rated -1 whatever the position
+    ne = len(ev)
+    pv = verts[ev]
+    # Edges of Gamma_h (both ends on Gamma) may not grow beyond GAMMA_EDGE_MAX h (or their
+    # length after M_h, if longer): the same cap seen from both ends, so that it always holds.
+    # One row per (vertex on Gamma, neighbour on Gamma), sorted by the vertex.
+    gv = np.concatenate([ev] * 3)
+    gw = np.concatenate([f0, f1, f2])
+    both = on_gamma[verts[gv]] & on_gamma[gw]
+    key = np.sort(gv[both] * len(y) + gw[both])
+    key = key[np.diff(key, prepend=-1) != 0]
+    cap_v, cap_w = key // len(y), key % len(y)
+    length = np.sqrt(((y[verts[cap_v]] - y[cap_w]) ** 2).sum(axis=1))
+    hmax_e = np.maximum(h[verts[cap_v]], h[cap_w])
+    cap_len2 = (np.maximum(GAMMA_EDGE_MAX * hmax_e, length) * (1.0 + TIE)) ** 2
+
+    def _star(E: Int) -> tuple:
+        """Positions, facets, ``u = p - g``, ``s``, ``L`` and qualities of entries ``E``."""
+        p = y[pv[E]]
+        g = tet.star_faces(y[f0[E]], y[f1[E]], y[f2[E]])
+        ux, uy, uz = p[:, 0] - g.gx, p[:, 1] - g.gy, p[:, 2] - g.gz
+        s = ux * g.nx + uy * g.ny + uz * g.nz  # k^(3/2) 6 V
+        L = ux * ux + uy * uy + uz * uz + g.lsq
+        r = np.cbrt(s)
+        q = np.where((s > 0.0) & ~flat[E], r * r / L, -1.0)
+        return p, g, ux, uy, uz, s, L, q
+
+    qe = np.empty(ne)  # the entries' qualities, rated at qclock
+    qclock = np.full(ne, -3, dtype=np.int64)
+    mclock = np.full(len(y), -2, dtype=np.int64)  # when each vertex last moved
+    clock = 0
+    bounds = np.searchsorted(colour[ev], np.arange(ncol + 1))
+    groups = [np.flatnonzero(colour == k) for k in range(ncol)]
+    gamma_v = on_gamma[verts]
+    nrm = normal.copy()  # normals at the current positions of the vertices on Gamma
+    step = INITIAL_STEP * h[verts]
+    hmax = MAX_STEP * h[verts]
+    hmin = MIN_STEP * h[verts]
+    todo = np.ones(m, dtype=bool)
+    num_moves, done = 0, 0
+    for sweep in range(sweeps):
+        sweep_start = clock
+        if sub.map is not None:
+            todo = sub.reduce(todo.astype(np.float64), "max") > 0
+        if not comm.allreduce(bool(todo[: sub.size_local].any()), op=MPI.LOR):
+            break
+        moves = 0
+        again = np.zeros(m, dtype=bool)
+        for k in range(ncol):
+            S = groups[k][todo[groups[k]]]
+            if not comm.allreduce(len(S) > 0, op=MPI.LOR):
+                continue
+            lo, hi = bounds[k], bounds[k + 1]
+            E = lo + np.flatnonzero(todo[ev[lo:hi]])
+            # The stars at the current positions: the entries whose tetrahedron changed
+            # since they were last rated, then the worst entry of each vertex.
+            vE = ev[E]
+            last = np.maximum(mclock[pv[E]], mclock[f0[E]])
+            last = np.maximum(last, np.maximum(mclock[f1[E]], mclock[f2[E]]))
+            D = E[last >= qclock[E]]
+            qe[D] = _star(D)[-1]
+            qclock[D] = clock
+            starts = np.flatnonzero(np.diff(vE, prepend=-1))
+            qv = np.full(m, np.inf)
+            qv[vE[starts]] = _segment_min(qe[E], starts)
+            qv = sub.reduce(qv, "min")
+            work = np.zeros(m, dtype=bool)
+            work[S] = (qv[S] < ACTIVE_BELOW) & (qv[S] > -1.0)
+            # Only the entries of the vertices to work on, from here.
+            E = E[work[vE]]
+            vE = ev[E]
+            p, g, ux, uy, uz, s, L, q = _star(E)
+            nx, ny, nz = g.nx, g.ny, g.nz
+            starts = np.flatnonzero(np.diff(vE, prepend=-1))
+            # Ascent direction: the near-worst entries' unit gradients, weighted.
+            # grad q = q (2/3 n / s - 2 u / L).
+            a, b = (2.0 / 3.0) / s, 2.0 / L
+            gx, gy, gz = a * nx - b * ux, a * ny - b * uy, a * nz - b * uz
+            gn = np.sqrt(gx * gx + gy * gy + gz * gz)
+            wt = 1.0 - (q - qv[vE]) / NEAR_WORST
+            wt = np.where((wt > 0.0) & (gn > 0.0), wt / np.where(gn > 0.0, gn, 1.0), 0.0)
+            dv = np.zeros((m, 3))
+            if len(starts):
+                for i, gi in enumerate((gx, gy, gz)):
+                    dv[vE[starts], i] = np.add.reduceat(wt * gi, starts)
+            dv = sub.reduce(dv, "sum")
+            S = S[work[S]]
+            G = S[gamma_v[S]]
+            if len(G):  # in the tangent plane
+                nn = nrm[verts[G]]
+                dv[G] -= (dv[G] * nn).sum(axis=1)[:, None] * nn
+            dn = np.sqrt((dv * dv).sum(axis=1))
+            dv /= np.where(dn > 0.0, dn, 1.0)[:, None]
+            # The worst quality along the line, at LINE_STEPS times the step.
+            d = dv[vE]
+            sig = d[:, 0] * nx + d[:, 1] * ny + d[:, 2] * nz
+            beta2 = 2.0 * (d[:, 0] * ux + d[:, 1] * uy + d[:, 2] * uz)
+            t = LINE_STEPS[:, None] * step[vE][None]  # (steps, entries)
+            st = s + t * sig
+            rt = np.cbrt(st)
+            qt = rt * rt / (L + t * (beta2 + t))
+            qt[st <= 0.0] = -1.0  # (the caps bind the vertices on Gamma, rated below)
+            qs = np.full((m, len(LINE_STEPS)), np.inf)
+            if len(starts):
+                qs[vE[starts]] = _segment_min(qt, starts).T
+            qs = sub.reduce(qs, "min")[S]
+            q0 = qv[S]
+            # The first step within TIE of the best, taken if it beats staying by > TIE.
+            best = np.argmax(qs >= qs.max(axis=1, initial=-np.inf)[:, None] - TIE, axis=1)
+            qb = qs[np.arange(len(S)), best]
+            tb = LINE_STEPS[best] * step[S]
+            gain = (qb > q0 + TIE) & (dn[S] > 0.0)
+            new = y[verts[S]] + tb[:, None] * dv[S]
+            # Inside vertices stuck along their direction (a kink of three or more worst
+            # tetrahedra): a compass of COMPASS directions at COMPASS_STEPS times the step.
+            stuck = np.zeros(m, dtype=bool)
+            stuck[S] = ~gain & ~gamma_v[S]
+            if comm.allreduce(bool(stuck.any()), op=MPI.LOR) and len(COMPASS_STEPS):
+                cs = np.flatnonzero(stuck[vE])
+                dirs = tet.directions(COMPASS, sweep * ncol + k)
+                sx, sy, sz = (v[cs] for v in (ux, uy, uz))
+                sig = (
+                    dirs[:, 0, None] * nx[cs]
+                    + dirs[:, 1, None] * ny[cs]
+                    + dirs[:, 2, None] * nz[cs]
+                )
+                beta2 = 2.0 * (
+                    dirs[:, 0, None] * sx + dirs[:, 1, None] * sy + dirs[:, 2, None] * sz
+                )
+                tc = COMPASS_STEPS[:, None, None] * step[vE[cs]][None, None]  # (ns, 1, n)
+                st = s[cs] + tc * sig[None]
+                rt = np.cbrt(st)
+                qc = rt * rt / (L[cs] + tc * (beta2[None] + tc))
+                qc[st <= 0.0] = -1.0
+                qc = qc.reshape(COMPASS * len(COMPASS_STEPS), len(cs))  # (the same on all ranks)
+                sc = np.flatnonzero(np.diff(vE[cs], prepend=-1))
+                qsc = np.full((m, qc.shape[0]), np.inf)
+                if len(sc):
+                    qsc[vE[cs][sc]] = _segment_min(qc, sc).T
+                qsc = sub.reduce(qsc, "min")[S]
+                bc = np.argmax(qsc >= qsc.max(axis=1, initial=-np.inf)[:, None] - TIE, axis=1)
+                qbc = qsc[np.arange(len(S)), bc]
+                take = stuck[S] & (qbc > q0 + TIE)
+                jc, ic = np.divmod(bc, COMPASS)
+                tcb = COMPASS_STEPS[jc] * step[S]
+                gain |= take
+                new[take] = y[verts[S[take]]] + (tcb[:, None] * dirs[ic])[take]
+                tb[take] = tcb[take]
+                qb[take] = qbc[take]
+            # Vertices on Gamma: fractions of the best step, projected and rated exactly.
+            gi = np.flatnonzero(gamma_v[S] & (dn[S] > 0.0))
+            if comm.allreduce(len(gi) > 0, op=MPI.LOR):
+                G = S[gi]
+                tg = tb[gi, None] * SLIDE_STEPS[None]
+                pc = y[verts[G]][:, None, :] + tg[..., None] * dv[G][:, None, :]
+                if SLIDES:  # and a compass in the tangent plane at the current step
+                    td = tet.tangent_directions(nrm[verts[G]], SLIDES, sweep * ncol + k)
+                    pc = np.concatenate(
+                        [pc, y[verts[G]][:, None, :] + step[G, None, None] * td], axis=1
+                    )
+                    tg = np.concatenate([tg, np.repeat(step[G, None], SLIDES, axis=1)], axis=1)
+                ns = pc.shape[1]
+                pp, pn = collective_call(
+                    comm, "closest-point projection", closest_normal, pc.reshape(-1, 3)
+                )
+                pp, pn = pp.reshape(len(G), ns, 3), pn.reshape(len(G), ns, 3)
+                row = np.full(m, -1, dtype=np.int64)
+                row[G] = np.arange(len(G))
+                eg = np.flatnonzero(row[vE] >= 0)
+                cand = pp[row[vE[eg]]].transpose(1, 0, 2)  # (steps, entries, 3)
+                face = tet.StarFaces(*(v[eg][None] for v in g))
+                qg = tet.star_quality(cand[..., 0], cand[..., 1], cand[..., 2], face)
+                qg[:, flat[E[eg]]] = -1.0
+                sg = np.flatnonzero(np.diff(vE[eg], prepend=-1))
+                qsg = np.full((m, ns), np.inf)
+                if len(sg):
+                    qsg[vE[eg][sg]] = _segment_min(qg, sg).T
+                # A slide may not stretch an edge of Gamma_h beyond its cap.
+                ce = np.flatnonzero(row[cap_v] >= 0)
+                dc = pp[row[cap_v[ce]]] - y[cap_w[ce]][:, None, :]
+                long = (dc * dc).sum(axis=2) > cap_len2[ce, None]
+                if len(ce):
+                    sc = np.flatnonzero(np.diff(cap_v[ce], prepend=-1))
+                    vc = cap_v[ce[sc]]
+                    qsg[vc] = np.where(np.logical_or.reduceat(long, sc), -1.0, qsg[vc])
+                qsg = sub.reduce(qsg, "min")[G]
+                bg = np.argmax(qsg >= qsg.max(axis=1, initial=-np.inf)[:, None] - TIE, axis=1)
+                rows = np.arange(len(G))
+                qb[gi] = qsg[rows, bg]
+                gain[gi] = qb[gi] > q0[gi] + TIE
+                new[gi] = pp[rows, bg]
+                tb[gi] = tg[rows, bg]
+                slid = gain[gi]
+                nrm[verts[G[slid]]] = pn[rows, bg][slid]
+            win = S[gain]
+            y[verts[win]] = new[gain]
+            mclock[verts[win]] = clock
+            clock += 1
+            # The step follows the accepted one; a vertex that gained goes on.
+            step[win] = np.clip(1.5 * np.abs(tb[gain]), hmin[win], hmax[win])
+            again[win] = True
+            moves += int(np.count_nonzero(win < sub.size_local))
+        # The neighbours of the vertices moved in this sweep are worked on again.
+        fresh = mclock >= sweep_start
+        again[ev[fresh[f0] | fresh[f1] | fresh[f2]]] = True
+        todo = again
+        done = sweep + 1
+        moves = comm.allreduce(moves, op=MPI.SUM)
+        num_moves += moves
+        if moves == 0:
+            break
+    slid_v = verts[gamma_v]
+    slid_v = slid_v[np.any(y[slid_v] != y0[slid_v], axis=1)]
+    xp[slid_v] = y[slid_v] + phi[slid_v, None] * nrm[slid_v]
+    moved = np.any(y != x0, axis=1)
+    return Relaxation(y, xp, moved, num_moves, done)
