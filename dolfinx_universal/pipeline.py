@@ -240,12 +240,17 @@ def scan_cells(c2v: Int, band: Int, s: Float, num_owned_cells: int) -> BandCells
     """
     code = (s < 0).astype(np.uint8) << 1
     code[band] |= 1
-    acc = code[c2v[:, 0]]
-    for k in range(1, c2v.shape[1]):
-        acc |= code[c2v[:, k]]
-    cells = np.flatnonzero(acc & 1).astype(np.int32)
+    if c2v.shape[1] == 4:  # a cell's 4 codes as the bytes of one uint32: 3 times faster
+        word = np.take(code, c2v).view(np.uint32).ravel()
+        near, inside = (word & 0x01010101) != 0, (word & 0x02020202) != 0
+    else:
+        acc = code[c2v[:, 0]]
+        for k in range(1, c2v.shape[1]):
+            acc |= code[c2v[:, k]]
+        near, inside = (acc & 1).astype(bool), (acc & 2).astype(bool)
+    cells = np.flatnonzero(near).astype(np.int32)
     num_owned = int(np.searchsorted(cells, num_owned_cells))
-    return BandCells(cells, num_owned, c2v[cells], (acc & 2).astype(bool))
+    return BandCells(cells, num_owned, c2v[cells], inside)
 
 
 def perturb(
@@ -404,14 +409,27 @@ def gamma_h(
     if band is None:
         near = c2v[near_cells]
         kept = kept_cells(s, c2v)
+        cut = positively_cut(s, near)
+        in_kept_cells = kept[near_cells]
     else:
         near = band.cv[: band.num_owned]
         kept = band.any_inside.copy()
-        kept[band.cells] = kept_cells(s, band.cv)
-    cut = positively_cut(s, near)
+        if band.cv.shape[1] == 4:
+            # per cell, the numbers of inside and outside vertices (codes 1 and 16) summed
+            # as the bytes of one uint32 (at most 4 * 17: no carry) for the cut and kept
+            # tests: one gather instead of eight
+            code = (s < 0).astype(np.uint8) | ((s > 0).astype(np.uint8) << 4)
+            word = np.take(code, band.cv).view(np.uint32).ravel()
+            total = (word * np.uint32(0x01010101)) >> np.uint32(24)
+            kept_band = (total & 15) > 0
+            cut = (total[: band.num_owned] >> 4) == 3
+        else:
+            kept_band = kept_cells(s, band.cv)
+            cut = positively_cut(s, near)
+        kept[band.cells] = kept_band
+        in_kept_cells = kept_band[: band.num_owned]
     pc_owned = near_cells[cut]
     facets, w = positive_facets(s, near[cut])
-    in_kept_cells = kept[near_cells]
     near_kept = near_cells[in_kept_cells]
     kept_cv = near[in_kept_cells]
     # both incidences in one reduction over the ranks
@@ -465,9 +483,14 @@ def map_band(
         Vertices whose image differs from their original position ``(num_vertices,)``.
     """
     y = xp.copy()
-    y[band] = _straight_map(
-        xp[band], phi[band], closest[band], normal[band], on_gamma[band], h[band], R_r[band], alpha
-    )
+    if alpha == 0.0:  # tetrahedra: M_h only snaps (the zero push skipped)
+        snapped = band[on_gamma[band]]
+        y[snapped] = closest[snapped]
+    else:
+        y[band] = _straight_map(
+            xp[band], phi[band], closest[band], normal[band], on_gamma[band], h[band],
+            R_r[band], alpha,
+        )  # fmt: skip
     moved = np.zeros(len(x), dtype=bool)
     yb, xb = y[band], x[band]
     diff = yb[:, 0] != xb[:, 0]
