@@ -472,14 +472,20 @@ class Torus(Surface):
         self.frame = _tangent_basis(self.axis[None])[0]
         """Rows ``t1, t2`` ``(2, 3)`` spanning the plane of the core circle."""
 
-    def _core(self, x: Float) -> tuple[Float, Float, Float, Float]:
-        """Axial offsets ``z (n,)``, radial distances ``rho (n,)``, radial unit vectors
-        ``(n, 3)`` and the closest points of the core circle ``(n, 3)``."""
+    def _offsets(self, x: Float) -> tuple[Float, Float, Float, Float]:
+        """Offsets ``d = x - center (n, 3)``, axial offsets ``z (n,)``, radial offsets
+        ``w (n, 3)`` and radial distances ``rho (n,)``: all that :meth:`sign` and
+        :meth:`near` need (the same arithmetic as :meth:`_core`)."""
         d = x - self.center
         z = d @ self.axis
         w = d - z[:, None] * self.axis
         w -= (w @ self.axis)[:, None] * self.axis  # again: rounding left along the axis
-        rho = _normd(w)
+        return d, z, w, _normd(w)
+
+    def _core(self, x: Float) -> tuple[Float, Float, Float, Float]:
+        """Axial offsets ``z (n,)``, radial distances ``rho (n,)``, radial unit vectors
+        ``(n, 3)`` and the closest points of the core circle ``(n, 3)``."""
+        d, z, w, rho = self._offsets(x)
         u = np.tile(self.frame[0], (len(x), 1))  # on the axis: any direction, t1
         pos = rho > 4 * _EPS * _normd(d)  # else w is rounding, of any direction
         u[pos] = w[pos] / rho[pos, None]
@@ -496,7 +502,7 @@ class Torus(Surface):
         return c, n
 
     def sign(self, x: npt.ArrayLike) -> Float:
-        z, rho, _, _ = self._core(_points(x))
+        _, z, _, rho = self._offsets(_points(x))
         return np.where((rho - self.major) ** 2 + z * z < self.minor**2, -1.0, 1.0)
 
     def _closest_normal(self, x: Float) -> tuple[Float, Float]:
@@ -516,7 +522,7 @@ class Torus(Surface):
         return self._lower_bound(x) <= _distances(distance, len(x))
 
     def _lower_bound(self, x: Float) -> Float:
-        z, rho, _, _ = self._core(x)
+        _, z, _, rho = self._offsets(x)
         return np.abs(np.hypot(rho - self.major, z) - self.minor)
 
     def bounding_box(self) -> Float:
