@@ -492,8 +492,9 @@ def build_parser() -> argparse.ArgumentParser:
             "curved (degree-K Lagrange geometry). Surfaces: a tetrahedral background sized "
             "by the surface's local feature size (at most H; dolfinx_universal.mesh_domain), "
             "refined while a check fails (with --uniform: one A15 lattice of size H); "
-            "straight tetrahedra only (K = 1). Writes mesh.vtkhdf + mesh.tags.npz (a "
-            "checkpoint for any degree: dolfinx_universal.io.read_mesh reads it back with its "
+            "optionally the tetrahedra along the surface are curved (degree-K geometry). "
+            "Writes mesh.vtkhdf + mesh.tags.npz (a checkpoint for any degree: "
+            "dolfinx_universal.io.read_mesh reads it back with its "
             "facet tags; ParaView reads the .vtkhdf), mesh.bp (VTX), mesh.xdmf (grids 'mesh' "
             "and 'facet_tags': 1 = immersed boundary, 2 = outer; K <= 2 only), mesh.png and "
             "summary.json (with the validity certificate). Lengths are in the units of the "
@@ -661,15 +662,16 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         default=1,
         metavar="K",
-        help="geometry degree; K > 1 curves the cells along the curve (curves only: "
-        "surfaces need K = 1)",
+        help="geometry degree; K > 1 curves the cells along the curve or surface (nodes "
+        "on it, every curved cell proven valid by Bernstein bounds of det J)",
     )
     m.add_argument(
         "--map",
         choices=MAPS,
-        default="I",
+        default=None,
         help="curved map for K > 1: I / G interpolate the blend G_h from the background "
-        "edges, I~ / G~ the blend G~_h through the straight conforming mesh",
+        "edges (faces), I~ / G~ the blend G~_h through the straight conforming mesh "
+        "[default: I for curves, I~ for surfaces]",
     )
     o = p.add_argument_group("output")
     o.add_argument(
@@ -714,11 +716,6 @@ def _check_shape_options(args: argparse.Namespace) -> None:
             raise ArgumentError(f"--{option} applies to --{shape} only")
     if args.angle != 0.0 and name in _SURFACES:
         raise ArgumentError("--angle applies to --ellipse only")
-    if _is_surface(args) and args.degree != 1:
-        raise ArgumentError(
-            f"--degree must be 1 for surfaces (got {args.degree}): curved tetrahedra are not "
-            "available yet"
-        )
 
 
 def make_boundary(args: argparse.Namespace) -> tuple[Boundary, dict[str, Any]]:
@@ -912,7 +909,7 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
     from .conform import IMMERSED, OUTER, conform
     from .curved import curved_mesh
     from .demo_support import versions
-    from .domain import default_box, mesh_domain
+    from .domain import DEFAULT_MAP, default_box, mesh_domain
     from .io import tags_path, write_mesh
     from .quality import quality_report
     from .validation import MeshingError
@@ -922,6 +919,8 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
     _check_numbers(args)
     boundary, shape = make_boundary(args)
     gdim = 3 if _is_surface(args) else 2
+    if getattr(args, "map", None) is None:
+        args.map = DEFAULT_MAP[gdim]
     bbox = np.asarray(boundary.bounding_box(), dtype=np.float64).reshape(2, gdim)
     extent = float((bbox[1] - bbox[0]).max())
     if not (np.all(np.isfinite(bbox)) and extent > 0):
@@ -1103,6 +1102,7 @@ def _run_surface(
 
     from .background_tet import a15_mesh
     from .conform import IMMERSED, OUTER, conform
+    from .curved import curved_mesh
     from .demo_support import versions
     from .domain import mesh_domain
     from .io import tags_path, write_mesh
@@ -1125,6 +1125,7 @@ def _run_surface(
             )
 
     certificate = None
+    curved_info: dict[str, Any] = {}
     t = time.perf_counter()
     try:
         if args.uniform:
@@ -1140,21 +1141,32 @@ def _run_surface(
                 min_angle=args.min_angle,
             )
             timings["conform"] = time.perf_counter() - t
+            msh, tags = cm.mesh, cm.facet_tags
+            if args.degree > 1:
+                t = time.perf_counter()
+                curved = curved_mesh(cm, args.degree, args.map)
+                msh, tags = curved.mesh, curved.facet_tags
+                curved_info["min_jacobian_ratio"] = float(curved.min_jacobian_ratio)
+                timings["curved"] = time.perf_counter() - t
         else:
             md = mesh_domain(
                 comm,
                 surface,
                 h,
-                degree=1,
+                degree=args.degree,
+                map=args.map,
                 box=box if args.margin is not None else None,
                 eta=args.eta,
                 relaxation_factor=args.rr,
                 min_angle=args.min_angle,
             )
             cm, background, certificate = md.conforming, md.background, md.certificate
+            msh, tags = md.mesh, md.facet_tags
             for stage, seconds in md.timings.items():
-                if stage not in ("total", "curved"):
+                if stage != "total" and (stage != "curved" or args.degree > 1):
                     timings[stage] = seconds
+            if md.curved is not None:
+                curved_info["min_jacobian_ratio"] = float(md.curved.min_jacobian_ratio)
     except MeshingError as e:
         if shape["type"] == "implicit" and "Euler characteristic" in str(e):
             how = "given" if shape["topology"] == "given" else "counted on the sampling grid"
@@ -1167,7 +1179,6 @@ def _run_surface(
         raise
     except ValueError as e:  # parameter checks (collective)
         raise ArgumentError(str(e)) from None
-    msh, tags = cm.mesh, cm.facet_tags
     if msh.topology.index_map(3).size_global == 0:  # same verdict on every rank
         raise MeshingError(
             f"no background vertex lies inside the domain: h = {h:.4g} is too coarse for a "
@@ -1193,20 +1204,27 @@ def _run_surface(
     with io.VTXWriter(comm, out / "mesh.bp", msh, engine="BPFile") as vtx:
         vtx.write(0.0)
     files.append("mesh.bp")
-    with io.XDMFFile(comm, out / "mesh.xdmf", "w") as xdmf:
-        xdmf.write_mesh(msh)
-        tags.name = "facet_tags"
-        xdmf.write_meshtags(tags, msh.geometry)
-    files += ["mesh.xdmf", "mesh.h5"]
+    if args.degree <= 2:
+        with io.XDMFFile(comm, out / "mesh.xdmf", "w") as xdmf:
+            xdmf.write_mesh(msh)
+            tags.name = "facet_tags"
+            xdmf.write_meshtags(tags, msh.geometry)
+        files += ["mesh.xdmf", "mesh.h5"]
+    elif comm.rank == 0:  # XDMF cannot hold degree >= 3: drop stale files of earlier runs
+        for name in ("mesh.xdmf", "mesh.h5"):
+            (out / name).unlink(missing_ok=True)
     timings["write"] = time.perf_counter() - t
 
     if plot:
         t = time.perf_counter()
+        deg = (
+            f", degree {args.degree} ({args.map}; straight cells shown)" if args.degree > 1 else ""
+        )
         _plot_surface_mesh(
             comm,
             cm,
             out / "mesh.png",
-            f"universal mesh: {shape['type']}, h = {h_used:.3g}",
+            f"universal mesh: {shape['type']}, h = {h_used:.3g}{deg}",
             float(quality["theta_min_deg"]),
         )
         files.append("mesh.png")
@@ -1233,8 +1251,8 @@ def _run_surface(
         "R_r": args.rr * h_used,
         "alpha": cm.alpha,
         "eta": cm.eta,
-        "degree": 1,
-        "map": None,
+        "degree": args.degree,
+        "map": args.map if args.degree > 1 else None,
         "n_background_cells": background.topology.index_map(3).size_global,
         "n_cells": int(quality["n_cells"]),
         "n_vertices": msh.topology.index_map(0).size_global,
@@ -1242,6 +1260,7 @@ def _run_surface(
         "n_relocated": cm.num_relocated,
         "facets": {"tags": {"immersed": IMMERSED, "outer": OUTER}, "counts": facets},
         "quality": quality,
+        **({"curved": curved_info} if curved_info else {}),
         "background": "A15 uniform (--uniform)"
         if certificate is None
         else f"{certificate.background} (mesh_domain)",  # the one mesh_domain chose

@@ -447,7 +447,7 @@ def test_surface_help(capsys):
         (["--ellipsoid", "1", "1"], "expected 3 arguments"),
         (["--torus", "1", "2"], "needs r < R"),
         (["--torus", "1", "0.3", "--axis", "0", "0", "0"], "--axis must be a finite non-zero"),
-        (["--sphere", "1", "--degree", "2"], "--degree must be 1 for surfaces"),
+        (["--sphere", "1", "--degree", "0"], "--degree must be >= 1"),
         (["--sphere", "1", "--center", "0", "0"], "--center needs X Y Z for a surface"),
         (["--circle", "1", "--center", "0", "0", "0"], "--center needs X Y for a curve"),
         (["--sphere", "1", "--genus", "1"], "--genus applies to --implicit only"),

@@ -1,0 +1,157 @@
+"""mesh_domain and the command line with curved tetrahedra (degree 2 and 3): nodes on Gamma,
+proven Jacobian ratios, the certificate, the refinement loop on an unproven cell, the same
+mesh on 1 and 2 ranks, and ``--degree`` for surfaces."""
+
+from __future__ import annotations
+
+import json
+
+from mpi4py import MPI
+
+import numpy as np
+import pytest
+import ufl
+from dolfinx import fem
+from dolfinx import mesh as dmesh
+
+import dolfinx_universal as du
+from dolfinx_universal import domain as du_domain
+from dolfinx_universal.cli import main
+from dolfinx_universal.io import read_mesh
+
+comm = MPI.COMM_WORLD
+C = np.array([0.0123, 0.0071, 0.0049])  # off the lattice's symmetry planes
+# size_factor: coarser than the default (feature / 3) to keep the meshes small
+CASES = {
+    "sphere": (du.Sphere(C, 1.0), 2, None, 4.0 / 3.0 * np.pi),
+    "ellipsoid": (du.Ellipsoid(C, (1.0, 0.7, 0.5)), 3, 1.5, 4.0 / 3.0 * np.pi * 0.35),
+    "torus": (du.Torus(C, 1.0, 0.35), 2, 1.5, 2.0 * np.pi**2 * 0.35**2),
+}
+
+
+def _volume(msh: dmesh.Mesh) -> float:
+    q = msh.geometry.cmaps[0].degree
+    dx = ufl.dx(msh, metadata={"quadrature_degree": 3 * q})
+    return msh.comm.allreduce(fem.assemble_scalar(fem.form(1.0 * dx)), op=MPI.SUM)
+
+
+def _gamma_nodes(msh: dmesh.Mesh, tags: dmesh.MeshTags) -> np.ndarray:
+    """Geometry nodes of the immersed faces (process-local)."""
+    msh.topology.create_connectivity(2, 3)
+    nodes = dmesh.entities_to_geometry(msh, 2, tags.find(du.IMMERSED))
+    return msh.geometry.x[np.unique(nodes)]
+
+
+@pytest.fixture(scope="module")
+def meshed():
+    cache: dict[str, du.MeshedDomain] = {}
+
+    def get(name: str) -> du.MeshedDomain:
+        if name not in cache:
+            surface, degree, factor, _ = CASES[name]
+            cache[name] = du.mesh_domain(comm, surface, 0.5, degree=degree, size_factor=factor)
+        return cache[name]
+
+    return get
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_curved_mesh_domain(meshed, name):
+    surface, degree, _, exact = CASES[name]
+    md = meshed(name)
+    c = md.certificate
+    assert md.curved is not None and md.mesh is md.curved.mesh
+    assert md.mesh.geometry.cmaps[0].degree == degree and md.mesh.topology.dim == 3
+    # Certificate: the degree, the default map of tetrahedra, a proven positive ratio
+    assert (c.degree, c.map, c.tdim) == (degree, "I~", 3)
+    assert c.min_jacobian_ratio == md.curved.min_jacobian_ratio
+    assert 0.5 < c.min_jacobian_ratio <= 1.0 + 1e-12  # measured 0.73-1.0
+    assert c.num_cells == md.mesh.topology.index_map(3).size_global
+    assert c.num_loops == 1 and c.num_pieces == 1
+    assert f"(degree {degree}, map I~)" in str(c)
+    assert json.loads(json.dumps(c.as_dict()))["min_jacobian_ratio"] == c.min_jacobian_ratio
+    assert md.timings["curved"] > 0
+    # Every node of an immersed face lies on Gamma
+    x = _gamma_nodes(md.mesh, md.facet_tags)
+    assert comm.allreduce(len(x)) > 0
+    d = np.linalg.norm(surface.closest_point(x) - x, axis=1) if len(x) else np.zeros(1)
+    assert comm.allreduce(float(d.max()), op=MPI.MAX) < 1e-13
+    # The curved volume is far closer than the straight one (O(h^2))
+    err = abs(_volume(md.mesh) / exact - 1)
+    err_straight = abs(_volume(md.conforming.mesh) / exact - 1)
+    assert err < err_straight / 10, (err, err_straight)
+
+
+def test_map_argument(meshed):
+    surface = CASES["sphere"][0]
+    md = du.mesh_domain(comm, surface, 0.5, degree=2, map="I")
+    ref = meshed("sphere")
+    assert md.certificate.map == "I" and md.curved is not None and md.curved.map == "I"
+    assert md.certificate.num_cells == ref.certificate.num_cells  # the same straight mesh
+    # projecting the background's faces bends the cells more (measured 0.73 against 1.00)
+    assert 0 < md.certificate.min_jacobian_ratio < ref.certificate.min_jacobian_ratio
+    with pytest.raises(ValueError, match="unknown map"):
+        du.mesh_domain(comm, surface, 0.5, degree=2, map="J")
+
+
+def test_unproven_curved_cells_refine_the_background(monkeypatch):
+    """A curved cell not proven valid is a refinable failure: the background is refined
+    near it and the domain meshed again (the first curving refused here on purpose)."""
+    real = du_domain.curved_mesh
+    calls: list[int] = []
+
+    def once(cm, degree, map):
+        calls.append(cm.mesh.topology.index_map(3).size_global)
+        if len(calls) == 1:
+            raise du.MeshingError(
+                "3 curved tetrahedra are not proven valid near (1, 0, 0)",
+                np.array([[1.0, 0.0, 0.0]]),
+            )
+        return real(cm, degree, map)
+
+    monkeypatch.setattr(du_domain, "curved_mesh", once)
+    md = du.mesh_domain(comm, du.Sphere(C, 1.0), 0.5, degree=2, tet_background="a15")
+    c = md.certificate
+    assert len(calls) == 2 and calls[1] > calls[0]
+    assert c.refinement_rounds == 1 and "not proven valid" in c.refinements[0]
+    assert c.min_jacobian_ratio > 0 and c.h_min == pytest.approx(1.0 / 6.0)
+
+
+@pytest.mark.mpi
+def test_same_curved_mesh_on_any_number_of_ranks():
+    surface = CASES["torus"][0]
+    md = du.mesh_domain(comm, surface, 0.5, degree=2, size_factor=1.5)
+    serial = du.mesh_domain(MPI.COMM_SELF, surface, 0.5, degree=2, size_factor=1.5)
+    a, b = md.certificate, serial.certificate
+    assert a.num_cells == b.num_cells and a.refinement_rounds == b.refinement_rounds
+    assert a.min_jacobian_ratio == pytest.approx(b.min_jacobian_ratio, abs=1e-12)
+    assert _volume(md.mesh) == pytest.approx(_volume(serial.mesh), rel=1e-12)
+    n = md.mesh.geometry.index_map().size_local
+    assert comm.allreduce(n) == serial.mesh.geometry.index_map().size_local
+    # the same nodes (order-free)
+    x = np.concatenate(comm.allgather(md.mesh.geometry.x[:n]))
+    key = np.lexsort(np.round(x, 9).T[::-1])
+    y = serial.mesh.geometry.x[: len(x)]
+    assert np.abs(x[key] - y[np.lexsort(np.round(y, 9).T[::-1])]).max() < 1e-12
+
+
+@pytest.mark.mpi
+def test_cli_degree_for_surfaces(mpi_tmp_path, capsys):
+    out = mpi_tmp_path / "sphere2"
+    argv = ["--sphere", "1", "--degree", "2", "--h", "0.5", "--out", str(out), "--no-plot"]
+    assert main(argv) == 0
+    text = capsys.readouterr().out
+    s = json.loads((out / "summary.json").read_text())
+    assert s["dimension"] == 3 and s["degree"] == 2 and s["map"] == "I~"
+    assert 0 < s["curved"]["min_jacobian_ratio"] == s["certificate"]["min_jacobian_ratio"]
+    assert s["certificate"]["degree"] == 2 and "curved" in s["timings_s"]
+    assert {"mesh.vtkhdf", "mesh.tags.npz", "mesh.xdmf"} <= set(s["files"])
+    if comm.rank == 0:
+        assert "(degree 2, map I~)" in text
+    msh, tags = read_mesh(comm, out / "mesh.vtkhdf")
+    assert msh.geometry.cmaps[0].degree == 2 and tags is not None
+    assert msh.topology.index_map(3).size_global == s["n_cells"]
+    assert msh.geometry.index_map().size_global == s["n_geometry_nodes"]
+    x = _gamma_nodes(msh, tags)
+    r = np.abs(np.linalg.norm(x, axis=1) - 1.0) if len(x) else np.zeros(1)
+    assert comm.allreduce(float(r.max()), op=MPI.MAX) < 1e-13
