@@ -25,6 +25,11 @@ minimum never falls, as in 2D. A vertex is visited again only while it keeps gai
 after a neighbour moved: a vertex that could not gain along its direction, or whose star
 meets the target with a margin (:data:`ACTIVE_BELOW`), waits until its star changes.
 
+The quality of every tetrahedron is kept (one value per cell, rated once at the start) and
+set by the move that changes it, from the winning candidate's ratings of the mover's star
+(no two corners of a tetrahedron move together): finding a vertex's worst tetrahedron
+re-rates nothing, only the stars of the vertices worked on are rated, once per visit.
+
 Rank independence: every decision is taken on values reduced over the ranks (minimum
 qualities; the direction's sum, whose rounding may differ between partitions by a few
 ulps, far below the tie tolerance), as in 2D.
@@ -143,6 +148,40 @@ def vertex_colours_graph(sub: _Sub, cells: Int, priority: Float) -> Int:
     return colour
 
 
+def line_quality(s: Float, L: Float, sig: Float, beta2: Float, t: Float) -> Float:
+    """:func:`_tetrahedron.star_quality` of star entries at ``p + t d`` (``|d| = 1``).
+
+    With ``u = p - g`` and ``n`` of :func:`_tetrahedron.star_faces` at ``t = 0``:
+    ``s = u . n``, ``L = |u|^2 + lsq``, ``sig = d . n`` and ``beta2 = 2 d . u``; then
+    ``s(t) = s + t sig`` and ``L(t) = L + t (beta2 + t)``. The arrays broadcast (entries
+    along the last axis, steps or directions in front); -1 where ``s(t) <= 0``.
+    """
+    st = s + t * sig
+    rt = np.cbrt(st)
+    q = rt * rt / (L + t * (beta2 + t))
+    q[st <= 0.0] = -1.0
+    return q
+
+
+def ascent_gradients(
+    q: Float, qworst: Float, s: Float, L: Float, u: tuple, n: tuple
+) -> tuple[Float, Float, Float]:
+    """Weighted unit gradients of the near-worst star entries (zero for the others).
+
+    ``grad q = q (2/3 n / s - 2 u / L)`` at entries of quality ``q`` (all valid: ``s > 0``)
+    whose star's worst quality is ``qworst``; weight ``1 - (q - qworst) / NEAR_WORST`` where
+    positive. Summed over a star they give its ascent direction.
+    """
+    ux, uy, uz = u
+    nx, ny, nz = n
+    a, b = (2.0 / 3.0) / s, 2.0 / L
+    gx, gy, gz = a * nx - b * ux, a * ny - b * uy, a * nz - b * uz
+    gn = np.sqrt(gx * gx + gy * gy + gz * gz)
+    wt = 1.0 - (q - qworst) / NEAR_WORST
+    wt = np.where((wt > 0.0) & (gn > 0.0), wt / np.where(gn > 0.0, gn, 1.0), 0.0)
+    return wt * gx, wt * gy, wt * gz
+
+
 def _segment_min(v: Float, starts: Int) -> Float:
     """Minimum of each segment of the last axis."""
     return np.minimum.reduceat(v, starts, axis=-1) if len(starts) else v[..., :0]
@@ -189,7 +228,6 @@ def relax_tetrahedra(
     f[neg] = f[neg][:, [0, 2, 1]]
     f0, f1, f2 = (np.ascontiguousarray(f[:, i]) for i in range(3))
     flat = eo == 0  # no orientation to keep: rated -1 whatever the position
-    ne = len(ev)
     pv = verts[ev]
     # Edges of Gamma_h (both ends on Gamma) may not grow beyond GAMMA_EDGE_MAX h (or their
     # length after M_h, if longer): the same cap seen from both ends, so that it always holds.
@@ -215,8 +253,12 @@ def relax_tetrahedra(
         q = np.where((s > 0.0) & ~flat[E], r * r / L, -1.0)
         return p, g, ux, uy, uz, s, L, q
 
-    qe = np.empty(ne)  # the entries' qualities, rated at qclock
-    qclock = np.full(ne, -3, dtype=np.int64)
+    # The quality of each tetrahedron at the current positions: rated once here (from one
+    # of its entries), then set by the move that changes it (the winning candidate's
+    # ratings of the mover's entries: no two vertices of a tetrahedron move together).
+    qcell = np.full(len(cells), -1.0)
+    _, first = np.unique(cell_idx, return_index=True)
+    qcell[cell_idx[first]] = _star(first)[-1]
     mclock = np.full(len(y), -2, dtype=np.int64)  # when each vertex last moved
     clock = 0
     bounds = np.searchsorted(colour[ev], np.arange(ncol + 1))
@@ -242,17 +284,11 @@ def relax_tetrahedra(
                 continue
             lo, hi = bounds[k], bounds[k + 1]
             E = lo + np.flatnonzero(todo[ev[lo:hi]])
-            # The stars at the current positions: the entries whose tetrahedron changed
-            # since they were last rated, then the worst entry of each vertex.
+            # The worst tetrahedron of each vertex's star.
             vE = ev[E]
-            last = np.maximum(mclock[pv[E]], mclock[f0[E]])
-            last = np.maximum(last, np.maximum(mclock[f1[E]], mclock[f2[E]]))
-            D = E[last >= qclock[E]]
-            qe[D] = _star(D)[-1]
-            qclock[D] = clock
             starts = np.flatnonzero(np.diff(vE, prepend=-1))
             qv = np.full(m, np.inf)
-            qv[vE[starts]] = _segment_min(qe[E], starts)
+            qv[vE[starts]] = _segment_min(qcell[cell_idx[E]], starts)
             qv = sub.reduce(qv, "min")
             work = np.zeros(m, dtype=bool)
             work[S] = (qv[S] < ACTIVE_BELOW) & (qv[S] > -1.0)
@@ -263,16 +299,11 @@ def relax_tetrahedra(
             nx, ny, nz = g.nx, g.ny, g.nz
             starts = np.flatnonzero(np.diff(vE, prepend=-1))
             # Ascent direction: the near-worst entries' unit gradients, weighted.
-            # grad q = q (2/3 n / s - 2 u / L).
-            a, b = (2.0 / 3.0) / s, 2.0 / L
-            gx, gy, gz = a * nx - b * ux, a * ny - b * uy, a * nz - b * uz
-            gn = np.sqrt(gx * gx + gy * gy + gz * gz)
-            wt = 1.0 - (q - qv[vE]) / NEAR_WORST
-            wt = np.where((wt > 0.0) & (gn > 0.0), wt / np.where(gn > 0.0, gn, 1.0), 0.0)
+            wg = ascent_gradients(q, qv[vE], s, L, (ux, uy, uz), (nx, ny, nz))
             dv = np.zeros((m, 3))
             if len(starts):
-                for i, gi in enumerate((gx, gy, gz)):
-                    dv[vE[starts], i] = np.add.reduceat(wt * gi, starts)
+                for i, wgi in enumerate(wg):
+                    dv[vE[starts], i] = np.add.reduceat(wgi, starts)
             dv = sub.reduce(dv, "sum")
             S = S[work[S]]
             G = S[gamma_v[S]]
@@ -286,10 +317,7 @@ def relax_tetrahedra(
             sig = d[:, 0] * nx + d[:, 1] * ny + d[:, 2] * nz
             beta2 = 2.0 * (d[:, 0] * ux + d[:, 1] * uy + d[:, 2] * uz)
             t = LINE_STEPS[:, None] * step[vE][None]  # (steps, entries)
-            st = s + t * sig
-            rt = np.cbrt(st)
-            qt = rt * rt / (L + t * (beta2 + t))
-            qt[st <= 0.0] = -1.0  # (the caps bind the vertices on Gamma, rated below)
+            qt = line_quality(s, L, sig, beta2, t)  # (caps: rated below, on Gamma)
             qs = np.full((m, len(LINE_STEPS)), np.inf)
             if len(starts):
                 qs[vE[starts]] = _segment_min(qt, starts).T
@@ -301,6 +329,11 @@ def relax_tetrahedra(
             tb = LINE_STEPS[best] * step[S]
             gain = (qb > q0 + TIE) & (dn[S] > 0.0)
             new = y[verts[S]] + tb[:, None] * dv[S]
+            # The entries' qualities at each vertex's chosen candidate.
+            rowS = np.full(m, -1, dtype=np.int64)
+            rowS[S] = np.arange(len(S))
+            rE = rowS[vE]
+            qnew = qt[best[rE], np.arange(len(E))]
             # Inside vertices stuck along their direction (a kink of three or more worst
             # tetrahedra): a compass of COMPASS directions at COMPASS_STEPS times the step.
             stuck = np.zeros(m, dtype=bool)
@@ -318,10 +351,7 @@ def relax_tetrahedra(
                     dirs[:, 0, None] * sx + dirs[:, 1, None] * sy + dirs[:, 2, None] * sz
                 )
                 tc = COMPASS_STEPS[:, None, None] * step[vE[cs]][None, None]  # (ns, 1, n)
-                st = s[cs] + tc * sig[None]
-                rt = np.cbrt(st)
-                qc = rt * rt / (L[cs] + tc * (beta2[None] + tc))
-                qc[st <= 0.0] = -1.0
+                qc = line_quality(s[cs], L[cs], sig[None], beta2[None], tc)
                 qc = qc.reshape(COMPASS * len(COMPASS_STEPS), len(cs))  # (the same on all ranks)
                 sc = np.flatnonzero(np.diff(vE[cs], prepend=-1))
                 qsc = np.full((m, qc.shape[0]), np.inf)
@@ -337,6 +367,8 @@ def relax_tetrahedra(
                 new[take] = y[verts[S[take]]] + (tcb[:, None] * dirs[ic])[take]
                 tb[take] = tcb[take]
                 qb[take] = qbc[take]
+                tk = take[rE[cs]]
+                qnew[cs[tk]] = qc[bc[rE[cs[tk]]], np.flatnonzero(tk)]
             # Vertices on Gamma: fractions of the best step, projected and rated exactly.
             gi = np.flatnonzero(gamma_v[S] & (dn[S] > 0.0))
             if comm.allreduce(len(gi) > 0, op=MPI.LOR):
@@ -382,8 +414,11 @@ def relax_tetrahedra(
                 tb[gi] = tg[rows, bg]
                 slid = gain[gi]
                 nrm[verts[G[slid]]] = pn[rows, bg][slid]
+                qnew[eg] = qg[bg[row[vE[eg]]], np.arange(len(eg))]
             win = S[gain]
             y[verts[win]] = new[gain]
+            moved_e = gain[rE]
+            qcell[cell_idx[E[moved_e]]] = qnew[moved_e]
             mclock[verts[win]] = clock
             clock += 1
             # The step follows the accepted one; a vertex that gained goes on.

@@ -1,0 +1,217 @@
+"""The directional vertex relaxation of tetrahedra (dolfinx_universal._dvr)."""
+
+from __future__ import annotations
+
+from mpi4py import MPI
+
+import numpy as np
+import pytest
+
+from dolfinx_universal import _dvr
+from dolfinx_universal import _tetrahedron as tet
+from dolfinx_universal.background_tet import a15_tetrahedralisation
+
+
+class _SerialMap:
+    """The vertex index map of one rank: :class:`relax._Sub` reads only its communicator."""
+
+    comm = MPI.COMM_SELF
+
+
+def _star_data(p, face):
+    """``u = p - g``, ``s``, ``L`` of the entries ``(p, face)`` at ``t = 0``."""
+    u = (p[:, 0] - face.gx, p[:, 1] - face.gy, p[:, 2] - face.gz)
+    s = u[0] * face.nx + u[1] * face.ny + u[2] * face.nz
+    L = u[0] ** 2 + u[1] ** 2 + u[2] ** 2 + face.lsq
+    return u, s, L
+
+
+def _random_entries(rng, n):
+    """Random entries ``(p, a, b, c)``: valid, inverted, flat and coincident facets."""
+    p = rng.standard_normal((n, 3))
+    a, b, c = (rng.standard_normal((n, 3)) for _ in range(3))
+    k = n // 8
+    c[:k] = a[:k] + 0.7 * (b[:k] - a[:k])  # collinear facets
+    b[k : 2 * k] = a[k : 2 * k]  # two coincident corners
+    b[2 * k : 3 * k] = c[2 * k : 3 * k] = a[2 * k : 3 * k]  # a point
+    p[3 * k : 4 * k] = a[3 * k : 4 * k] + 0.5 * (b[3 * k : 4 * k] - a[3 * k : 4 * k])  # flat
+    return p, a, b, c
+
+
+def test_line_quality_is_star_quality():
+    """The closed form along ``p + t d`` equals the kernel evaluated at those points."""
+    rng = np.random.default_rng(11)
+    n = 4000
+    p, a, b, c = _random_entries(rng, n)
+    face = tet.star_faces(a, b, c)
+    u, s, L = _star_data(p, face)
+    d = rng.standard_normal((n, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    sig = d[:, 0] * face.nx + d[:, 1] * face.ny + d[:, 2] * face.nz
+    beta2 = 2.0 * (d[:, 0] * u[0] + d[:, 1] * u[1] + d[:, 2] * u[2])
+    t = np.array([0.0, 0.01, 0.1, 0.5, 1.0, 2.0, -0.3])[:, None] * np.ones(n)
+    q = _dvr.line_quality(s, L, sig, beta2, t)
+    x = p[None] + t[..., None] * d[None]
+    ref = tet.star_quality(x[..., 0], x[..., 1], x[..., 2], tet.StarFaces(*(v[None] for v in face)))
+    assert q.shape == ref.shape == (len(t), n)
+    valid = ref > -1
+    assert 0.2 < valid.mean() < 0.8
+    # Where 6V is small against |u| |n| its relative rounding grows (up to sign flips):
+    # compare where it is above 1e-3 |u| |n| (relative rounding below ~1e-13).
+    nn = np.sqrt(face.nx**2 + face.ny**2 + face.nz**2)
+    ux, uy, uz = (x[..., i] - g for i, g in enumerate((face.gx, face.gy, face.gz)))
+    scale = np.sqrt(ux * ux + uy * uy + uz * uz) * nn
+    s_t = s + t * sig
+    clear = np.abs(s_t) > 1e-3 * scale
+    assert clear.mean() > 0.6
+    assert np.array_equal((q > -1)[clear], valid[clear])
+    both = clear & valid
+    assert np.all(np.abs(q[both] - ref[both]) <= 1e-12 * np.abs(ref[both]))
+    assert np.all(q[clear & ~valid] == -1.0)
+    # Facets with coincident corners (zero normal) rate -1 along every line, collinear
+    # ones (a normal of rounding) about 0 or -1.
+    k = n // 8
+    assert np.all(q[:, k : 3 * k] == -1.0) and np.all(ref[:, k : 3 * k] == -1.0)
+    assert np.all(q[:, :k] < 1e-9) and np.all(ref[:, :k] < 1e-9)
+
+
+def _perturbed_a15(seed, amplitude=0.2):
+    """An A15 patch of size 1 with its inner vertices moved by ``amplitude`` at random."""
+    rng = np.random.default_rng(seed)
+    x, cells = a15_tetrahedralisation([[0, 0, 0], [3, 3, 3]], 1.0)
+    lo, hi = x.min(axis=0), x.max(axis=0)
+    inner = np.all((x > lo + 0.6) & (x < hi - 0.6), axis=1)
+    y = x + np.where(inner[:, None], rng.uniform(-amplitude, amplitude, x.shape), 0.0)
+    return x, y, cells, inner
+
+
+def _stars(y, cells, v):
+    """Entries ``(p, face)`` of vertex ``v``'s star (faces oriented as the relaxation's)."""
+    orient = np.sign(tet.signed_volumes(y, cells))
+    ci, corner = np.nonzero(cells == v)
+    f = cells[ci[:, None], tet.FACETS[corner]]
+    neg = orient[ci] < 0
+    f[neg] = f[neg][:, [0, 2, 1]]
+    return tet.star_faces(y[f[:, 0]], y[f[:, 1]], y[f[:, 2]])
+
+
+def test_ascent_direction_raises_a_unique_worst():
+    """The weighted gradients' sum is an ascent direction of a star's worst quality where
+    the worst entry is unique; a single entry's gradient matches finite differences."""
+    x, y, cells, inner = _perturbed_a15(3)
+    checked = 0
+    for v in np.flatnonzero(inner)[::7]:
+        face = _stars(y, cells, v)
+        p = np.repeat(y[v][None], len(face.gx), axis=0)
+        u, s, L = _star_data(p, face)
+        q = tet.star_quality(p[:, 0], p[:, 1], p[:, 2], face)
+        if q.min() <= 0:
+            continue
+        order = np.sort(q)
+        qw = np.full_like(q, q.min())
+        g = _dvr.ascent_gradients(q, qw, s, L, u, (face.nx, face.ny, face.nz))
+        d = np.array([gi.sum() for gi in g])
+        assert np.linalg.norm(d) > 0
+        d /= np.linalg.norm(d)
+        # Gradient of the worst entry against central differences.
+        w = int(np.argmin(q))
+        fw = face.select(np.array([w]))
+        grad = np.empty(3)
+        for i in range(3):
+            e = np.zeros(3)
+            e[i] = 1e-6
+            qp = tet.star_quality(*(y[v] + e)[:, None], fw)[0]
+            qm = tet.star_quality(*(y[v] - e)[:, None], fw)[0]
+            grad[i] = (qp - qm) / 2e-6
+        a, b = (2.0 / 3.0) / s[w], 2.0 / L[w]
+        exact = q[w] * np.array([a * face.nx[w] - b * u[0][w], a * face.ny[w] - b * u[1][w],
+                                 a * face.nz[w] - b * u[2][w]])  # fmt: skip
+        assert np.allclose(exact, grad, rtol=1e-6, atol=1e-8)
+        if order[1] - order[0] < 1e-3:
+            continue  # a near tie: the worst is not unique at the step below
+        checked += 1
+        assert d @ exact > 0
+        eps = 1e-6 * (order[1] - order[0])
+        qe = tet.star_quality(*(y[v] + eps * d)[:, None], face)
+        assert qe.min() > q.min()
+    assert checked >= 10
+
+
+def _relax(x, y, cells, movable, sweeps=None):
+    n = len(x)
+    return _dvr.relax_tetrahedra(
+        MPI.COMM_SELF, _SerialMap(), lambda p: (p, np.zeros_like(p)), x, x.copy(), y, cells,
+        movable, np.zeros(n, dtype=bool), np.zeros_like(x), np.zeros(n), np.ones(n),
+        sweeps=sweeps,
+    )  # fmt: skip
+
+
+def _plane_relax(x, y, cells, movable, on_gamma, sweeps=None):
+    """Vertices on the plane ``z = 1.5`` slide along it."""
+    n = len(x)
+    normal = np.tile([0.0, 0.0, 1.0], (n, 1))
+
+    def closest_normal(p):
+        q = p.copy()
+        q[:, 2] = 1.5
+        return q, np.tile([0.0, 0.0, 1.0], (len(p), 1))
+
+    return _dvr.relax_tetrahedra(
+        MPI.COMM_SELF, _SerialMap(), closest_normal, x, x.copy(), y, cells, movable,
+        on_gamma, normal, np.zeros(n), np.ones(n), sweeps=sweeps,
+    )  # fmt: skip
+
+
+def _quality(y, cells, orient):
+    q = tet.mean_ratio(y, cells) * orient
+    return np.where(np.sign(tet.signed_volumes(y, cells)) == orient, q, -1.0)
+
+
+@pytest.mark.parametrize("seed", [1, 2, 5])
+@pytest.mark.parametrize("gamma", [False, True])
+def test_relaxation_never_lowers_the_touched_stars(seed, gamma):
+    """The worst tetrahedron of the moved vertices' stars never gets worse, none inverts,
+    the fixed vertices stay and the vertices on Gamma stay on it; more sweeps never lower
+    the overall worst quality."""
+    x, y, cells, inner = _perturbed_a15(seed)
+    on_gamma = np.zeros(len(x), dtype=bool)
+    if gamma:
+        near = inner & (np.abs(y[:, 2] - 1.5) < 0.15)
+        y[near, 2] = 1.5
+        on_gamma = near
+    orient = np.sign(tet.signed_volumes(y, cells))
+    assert np.all(orient > 0)
+    q0 = _quality(y, cells, orient)
+    history = [q0.min()]
+    for sweeps in (1, 2, 6):
+        r = (
+            _plane_relax(x, y, cells, inner, on_gamma, sweeps)
+            if gamma
+            else _relax(x, y, cells, inner, sweeps)
+        )
+        assert r.num_moves > 0 and r.num_sweeps <= sweeps
+        assert np.array_equal(r.y[~inner], y[~inner])
+        assert np.array_equal(r.moved, np.any(r.y != x, axis=1))
+        q = _quality(r.y, cells, orient)
+        assert np.all(np.sign(tet.signed_volumes(r.y, cells)) == orient)
+        touched = np.any(np.any(r.y != y, axis=1)[cells], axis=1)
+        assert touched.any() and q[touched].min() >= q0[touched].min() - 1e-12
+        history.append(q.min())
+        if gamma:
+            assert np.all(r.y[on_gamma, 2] == 1.5) and np.any(r.y[on_gamma] != y[on_gamma])
+            slid = on_gamma & np.any(r.y != y, axis=1)
+            assert np.array_equal(r.x[slid], r.y[slid])  # y + phi N, phi = 0
+    assert all(b >= a - 1e-12 for a, b in zip(history, history[1:]))
+    assert history[-1] > history[0] + 0.1
+
+
+def test_relaxation_is_deterministic():
+    x, y, cells, inner = _perturbed_a15(9)
+    a, b = _relax(x, y, cells, inner), _relax(x, y.copy(), cells.copy(), inner.copy())
+    assert np.array_equal(a.y, b.y) and np.array_equal(a.x, b.x)
+    assert a.num_moves == b.num_moves and a.num_sweeps == b.num_sweeps
+    # The order of the cells (and of their corners, keeping the orientation) changes
+    # nothing but rounding.
+    perm = np.random.default_rng(0).permutation(len(cells))
+    c = _relax(x, y, cells[perm][:, [1, 2, 0, 3]], inner)
+    assert np.abs(c.y - a.y).max() < 1e-12
