@@ -108,12 +108,15 @@ def vertex_colours_graph(sub: _Sub, cells: Int, priority: Float) -> Int:
     m = len(sub.vertices)
     colour = np.full(m, -1, dtype=np.int64)
     k = cells.shape[1]
-    pairs = [(i, j) for i in range(k) for j in range(k) if i != j]
+    pairs = [(i, j) for i in range(k) for j in range(i + 1, k)]
     src = np.concatenate([cells[:, i] for i, _ in pairs]).astype(np.int64)
     dst = np.concatenate([cells[:, j] for _, j in pairs]).astype(np.int64)
     keep = (src >= 0) & (dst >= 0)
-    key = np.sort(src[keep] * m + dst[keep])
-    key = key[np.diff(key, prepend=-1) != 0]  # distinct pairs, sorted by their first vertex
+    src, dst = np.minimum(src[keep], dst[keep]), np.maximum(src[keep], dst[keep])
+    key = np.sort(src * m + dst)
+    key = key[np.diff(key, prepend=-1) != 0]  # distinct edges, then both directions
+    src, dst = key // m, key % m
+    key = np.sort(np.concatenate([key, dst * m + src]))  # sorted by their first vertex
     src, dst = key // m, key % m
     while sub.comm.allreduce(bool((colour[: sub.size_local] < 0).any()), op=MPI.LOR):
         unc = colour < 0
@@ -156,9 +159,14 @@ def line_quality(s: Float, L: Float, sig: Float, beta2: Float, t: Float) -> Floa
     ``s(t) = s + t sig`` and ``L(t) = L + t (beta2 + t)``. The arrays broadcast (entries
     along the last axis, steps or directions in front); -1 where ``s(t) <= 0``.
     """
-    st = s + t * sig
-    rt = np.cbrt(st)
-    q = rt * rt / (L + t * (beta2 + t))
+    st = t * sig
+    st += s
+    q = np.cbrt(st)
+    q *= q
+    den = beta2 + t
+    den *= t
+    den += L
+    q /= den
     q[st <= 0.0] = -1.0
     return q
 
@@ -180,6 +188,45 @@ def ascent_gradients(
     wt = 1.0 - (q - qworst) / NEAR_WORST
     wt = np.where((wt > 0.0) & (gn > 0.0), wt / np.where(gn > 0.0, gn, 1.0), 0.0)
     return wt * gx, wt * gy, wt * gz
+
+
+_K15 = (4.0 * 2.0 ** (-2.0 / 3.0) / tet.TARGET_MEAN_RATIO) ** 1.5
+_TINY = np.finfo(np.float64).tiny
+
+
+def star_terms(
+    yc: tuple[Float, Float, Float], ip: np.ndarray, ia: np.ndarray, ib: np.ndarray, ic: np.ndarray
+) -> tuple[tuple[Float, Float, Float], tuple[Float, Float, Float], Float, Float, Float]:
+    """``u = p - g``, ``n``, ``lsq``, ``s`` and ``L`` of star entries ``(p, a, b, c)``.
+
+    The terms of :func:`_tetrahedron.star_faces` and :func:`_tetrahedron.star_quality`
+    (same scalings; ``g`` the facet's centroid, ``s = u . n``, ``L = |u|^2 + lsq``, the
+    quality ``cbrt(s)^2 / L`` where ``s > 0``) for the vertices ``ip`` and facets
+    ``(ia, ib, ic)`` of coordinates ``yc = (x, y, z)``, computed on separate coordinate
+    arrays relative to ``a`` (``u = (p - a) - (ab + ac) / 3``): about half the array passes
+    and none of the ``(n, 3)`` gathers and stacks of those two.
+    """
+    X, Y, Z = yc
+    ax, ay, az = X[ia], Y[ia], Z[ia]
+    bx, by, bz = X[ib] - ax, Y[ib] - ay, Z[ib] - az  # ab
+    cx, cy, cz = X[ic] - ax, Y[ic] - ay, Z[ic] - az  # ac
+    nx = (bz * cy - by * cz) * _K15  # -k^(3/2) ab x ac
+    ny = (bx * cz - bz * cx) * _K15
+    nz = (by * cx - bx * cy) * _K15
+    # 4/9 (|ab|^2 + |ac|^2 + |ac - ab|^2) = 8/9 (|ab|^2 + |ac|^2 - ab . ac), no cancellation
+    lsq = bx * bx + by * by + bz * bz + cx * cx + cy * cy + cz * cz
+    lsq -= bx * cx + by * cy + bz * cz
+    lsq *= 8.0 / 9.0
+    np.maximum(lsq, _TINY, out=lsq)
+    bx += cx
+    by += cy
+    bz += cz  # ab + ac = 3 (g - a)
+    ux = X[ip] - ax - bx / 3.0
+    uy = Y[ip] - ay - by / 3.0
+    uz = Z[ip] - az - bz / 3.0
+    s = ux * nx + uy * ny + uz * nz  # k^(3/2) 6 V
+    L = ux * ux + uy * uy + uz * uz + lsq
+    return (ux, uy, uz), (nx, ny, nz), lsq, s, L
 
 
 def _segment_min(v: Float, starts: Int) -> Float:
@@ -217,9 +264,16 @@ def relax_tetrahedra(
     # Star entries (vertex, opposite facet), sorted by colour and vertex: each colour is a
     # slice, each vertex a segment of it. The facet (a, b, c) is ordered so that
     # (p, a, b, c) is positively oriented while p stays on the cell's side.
-    cell_idx, corner = np.nonzero(csub >= 0)
+    cell_idx, corner = np.nonzero(csub >= 0)  # sorted by cell
     ev = csub[cell_idx, corner]
-    order = np.argsort(colour[ev] * max(m, 1) + ev, kind="stable")
+    key = colour[ev] * max(m, 1) + ev
+    if (ncol + 1) * max(m, 1) * max(len(cells), 1) < 2**62:  # unique keys: a faster sort
+        order = np.argsort(key * len(cells) + cell_idx)
+    else:
+        order = np.argsort(key, kind="stable")
+    inv = np.empty_like(order)
+    inv[order] = np.arange(len(order))
+    first = inv[np.flatnonzero(np.diff(cell_idx, prepend=-1))]  # an entry of each cell
     cell_idx, corner, ev = cell_idx[order], corner[order], ev[order]
     orient = np.sign(tet.signed_volumes(y, cells))
     eo = orient[cell_idx]
@@ -241,23 +295,23 @@ def relax_tetrahedra(
     length = np.sqrt(((y[verts[cap_v]] - y[cap_w]) ** 2).sum(axis=1))
     hmax_e = np.maximum(h[verts[cap_v]], h[cap_w])
     cap_len2 = (np.maximum(GAMMA_EDGE_MAX * hmax_e, length) * (1.0 + TIE)) ** 2
+    cap_ptr = np.searchsorted(cap_v, np.arange(m + 1))  # each vertex's rows
+
+    yc = (y[:, 0].copy(), y[:, 1].copy(), y[:, 2].copy())  # y's coordinates, kept up to date
 
     def _star(E: Int) -> tuple:
-        """Positions, facets, ``u = p - g``, ``s``, ``L`` and qualities of entries ``E``."""
-        p = y[pv[E]]
-        g = tet.star_faces(y[f0[E]], y[f1[E]], y[f2[E]])
-        ux, uy, uz = p[:, 0] - g.gx, p[:, 1] - g.gy, p[:, 2] - g.gz
-        s = ux * g.nx + uy * g.ny + uz * g.nz  # k^(3/2) 6 V
-        L = ux * ux + uy * uy + uz * uz + g.lsq
+        """:func:`star_terms` and the qualities of the entries ``E``."""
+        u, n, lsq, s, L = star_terms(yc, pv[E], f0[E], f1[E], f2[E])
         r = np.cbrt(s)
-        q = np.where((s > 0.0) & ~flat[E], r * r / L, -1.0)
-        return p, g, ux, uy, uz, s, L, q
+        r *= r
+        r /= L
+        q = np.where((s > 0.0) & ~flat[E], r, -1.0)
+        return u, n, lsq, s, L, q
 
     # The quality of each tetrahedron at the current positions: rated once here (from one
     # of its entries), then set by the move that changes it (the winning candidate's
     # ratings of the mover's entries: no two vertices of a tetrahedron move together).
     qcell = np.full(len(cells), -1.0)
-    _, first = np.unique(cell_idx, return_index=True)
     qcell[cell_idx[first]] = _star(first)[-1]
     mclock = np.full(len(y), -2, dtype=np.int64)  # when each vertex last moved
     clock = 0
@@ -295,27 +349,34 @@ def relax_tetrahedra(
             # Only the entries of the vertices to work on, from here.
             E = E[work[vE]]
             vE = ev[E]
-            p, g, ux, uy, uz, s, L, q = _star(E)
-            nx, ny, nz = g.nx, g.ny, g.nz
+            (ux, uy, uz), (nx, ny, nz), lsq, s, L, q = _star(E)
             starts = np.flatnonzero(np.diff(vE, prepend=-1))
             # Ascent direction: the near-worst entries' unit gradients, weighted.
-            wg = ascent_gradients(q, qv[vE], s, L, (ux, uy, uz), (nx, ny, nz))
-            dv = np.zeros((m, 3))
-            if len(starts):
-                for i, wgi in enumerate(wg):
-                    dv[vE[starts], i] = np.add.reduceat(wgi, starts)
-            dv = sub.reduce(dv, "sum")
+            nw = np.flatnonzero(q < qv[vE] + NEAR_WORST)
+            wg = ascent_gradients(
+                q[nw], qv[vE[nw]], s[nw], L[nw], (ux[nw], uy[nw], uz[nw]),
+                (nx[nw], ny[nw], nz[nw]),
+            )  # fmt: skip
+            dv = np.empty((m, 3))
+            for i, wgi in enumerate(wg):
+                dv[:, i] = np.bincount(vE[nw], weights=wgi, minlength=m)
             S = S[work[S]]
-            G = S[gamma_v[S]]
-            if len(G):  # in the tangent plane
-                nn = nrm[verts[G]]
-                dv[G] -= (dv[G] * nn).sum(axis=1)[:, None] * nn
-            dn = np.sqrt((dv * dv).sum(axis=1))
+            dv = sub.reduce(dv, "sum")[S]  # (rows of S, from here)
+            rowS = np.full(m, -1, dtype=np.int64)
+            rowS[S] = np.arange(len(S))
+            rE = rowS[vE]
+            gs = np.flatnonzero(gamma_v[S])
+            if len(gs):  # in the tangent plane
+                nn = nrm[verts[S[gs]]]
+                dv[gs] -= (dv[gs] * nn).sum(axis=1)[:, None] * nn
+            dvx, dvy, dvz = dv[:, 0], dv[:, 1], dv[:, 2]
+            dn = np.sqrt(dvx * dvx + dvy * dvy + dvz * dvz)
             dv /= np.where(dn > 0.0, dn, 1.0)[:, None]
             # The worst quality along the line, at LINE_STEPS times the step.
-            d = dv[vE]
-            sig = d[:, 0] * nx + d[:, 1] * ny + d[:, 2] * nz
-            beta2 = 2.0 * (d[:, 0] * ux + d[:, 1] * uy + d[:, 2] * uz)
+            dx, dy, dz = dvx[rE], dvy[rE], dvz[rE]
+            sig = dx * nx + dy * ny + dz * nz
+            beta2 = dx * ux + dy * uy + dz * uz
+            beta2 *= 2.0
             t = LINE_STEPS[:, None] * step[vE][None]  # (steps, entries)
             qt = line_quality(s, L, sig, beta2, t)  # (caps: rated below, on Gamma)
             qs = np.full((m, len(LINE_STEPS)), np.inf)
@@ -327,12 +388,9 @@ def relax_tetrahedra(
             best = np.argmax(qs >= qs.max(axis=1, initial=-np.inf)[:, None] - TIE, axis=1)
             qb = qs[np.arange(len(S)), best]
             tb = LINE_STEPS[best] * step[S]
-            gain = (qb > q0 + TIE) & (dn[S] > 0.0)
-            new = y[verts[S]] + tb[:, None] * dv[S]
+            gain = (qb > q0 + TIE) & (dn > 0.0)
+            new = y[verts[S]] + tb[:, None] * dv
             # The entries' qualities at each vertex's chosen candidate.
-            rowS = np.full(m, -1, dtype=np.int64)
-            rowS[S] = np.arange(len(S))
-            rE = rowS[vE]
             qnew = qt[best[rE], np.arange(len(E))]
             # Inside vertices stuck along their direction (a kink of three or more worst
             # tetrahedra): a compass of COMPASS directions at COMPASS_STEPS times the step.
@@ -370,11 +428,11 @@ def relax_tetrahedra(
                 tk = take[rE[cs]]
                 qnew[cs[tk]] = qc[bc[rE[cs[tk]]], np.flatnonzero(tk)]
             # Vertices on Gamma: fractions of the best step, projected and rated exactly.
-            gi = np.flatnonzero(gamma_v[S] & (dn[S] > 0.0))
+            gi = np.flatnonzero(gamma_v[S] & (dn > 0.0))
             if comm.allreduce(len(gi) > 0, op=MPI.LOR):
                 G = S[gi]
                 tg = tb[gi, None] * SLIDE_STEPS[None]
-                pc = y[verts[G]][:, None, :] + tg[..., None] * dv[G][:, None, :]
+                pc = y[verts[G]][:, None, :] + tg[..., None] * dv[gi][:, None, :]
                 if SLIDES:  # and a compass in the tangent plane at the current step
                     td = tet.tangent_directions(nrm[verts[G]], SLIDES, sweep * ncol + k)
                     pc = np.concatenate(
@@ -389,22 +447,32 @@ def relax_tetrahedra(
                 row = np.full(m, -1, dtype=np.int64)
                 row[G] = np.arange(len(G))
                 eg = np.flatnonzero(row[vE] >= 0)
-                cand = pp[row[vE[eg]]].transpose(1, 0, 2)  # (steps, entries, 3)
-                face = tet.StarFaces(*(v[eg][None] for v in g))
-                qg = tet.star_quality(cand[..., 0], cand[..., 1], cand[..., 2], face)
+                rg = row[vE[eg]]
+                pcx, pcy, pcz = (np.ascontiguousarray(pp[..., i].T) for i in range(3))
+                ip = pv[E[eg]]
+                face = tet.StarFaces(
+                    *(v[None] for v in (yc[0][ip] - ux[eg], yc[1][ip] - uy[eg],
+                                        yc[2][ip] - uz[eg], nx[eg], ny[eg], nz[eg], lsq[eg]))
+                )  # fmt: skip
+                qg = tet.star_quality(pcx[:, rg], pcy[:, rg], pcz[:, rg], face)  # (ns, entries)
                 qg[:, flat[E[eg]]] = -1.0
-                sg = np.flatnonzero(np.diff(vE[eg], prepend=-1))
+                sg = np.flatnonzero(np.diff(rg, prepend=-1))
                 qsg = np.full((m, ns), np.inf)
                 if len(sg):
                     qsg[vE[eg][sg]] = _segment_min(qg, sg).T
                 # A slide may not stretch an edge of Gamma_h beyond its cap.
-                ce = np.flatnonzero(row[cap_v] >= 0)
-                dc = pp[row[cap_v[ce]]] - y[cap_w[ce]][:, None, :]
-                long = (dc * dc).sum(axis=2) > cap_len2[ce, None]
-                if len(ce):
-                    sc = np.flatnonzero(np.diff(cap_v[ce], prepend=-1))
-                    vc = cap_v[ce[sc]]
-                    qsg[vc] = np.where(np.logical_or.reduceat(long, sc), -1.0, qsg[vc])
+                cnt = cap_ptr[G + 1] - cap_ptr[G]
+                cfirst = np.cumsum(cnt) - cnt
+                ce = np.repeat(cap_ptr[G] - cfirst, cnt) + np.arange(cnt.sum())
+                cr = np.repeat(np.arange(len(G)), cnt)
+                w = cap_w[ce]
+                dx, dy, dz = pcx[:, cr] - yc[0][w], pcy[:, cr] - yc[1][w], pcz[:, cr] - yc[2][w]
+                long = dx * dx + dy * dy + dz * dz > cap_len2[ce]  # (ns, cap rows)
+                has = cnt > 0
+                if has.any():
+                    over = np.logical_or.reduceat(long, cfirst[has], axis=1)
+                    Gh = G[has]
+                    qsg[Gh] = np.where(over.T, -1.0, qsg[Gh])
                 qsg = sub.reduce(qsg, "min")[G]
                 bg = np.argmax(qsg >= qsg.max(axis=1, initial=-np.inf)[:, None] - TIE, axis=1)
                 rows = np.arange(len(G))
@@ -417,6 +485,8 @@ def relax_tetrahedra(
                 qnew[eg] = qg[bg[row[vE[eg]]], np.arange(len(eg))]
             win = S[gain]
             y[verts[win]] = new[gain]
+            for i in range(3):
+                yc[i][verts[win]] = new[gain, i]
             moved_e = gain[rE]
             qcell[cell_idx[E[moved_e]]] = qnew[moved_e]
             mclock[verts[win]] = clock
