@@ -118,36 +118,36 @@ def vertex_colours_graph(sub: _Sub, cells: Int, priority: Float) -> Int:
     src, dst = key // m, key % m
     key = np.sort(np.concatenate([key, dst * m + src]))  # sorted by their first vertex
     src, dst = key // m, key % m
+    used = np.zeros(m, dtype=np.int64)  # bit c: a neighbour has colour c
     while sub.comm.allreduce(bool((colour[: sub.size_local] < 0).any()), op=MPI.LOR):
         unc = colour < 0
-        keep = unc[src]
+        keep = unc[src] & unc[dst]  # the pairs of uncoloured vertices
         src, dst = src[keep], dst[keep]
         starts = np.flatnonzero(np.diff(src, prepend=-1))
         vmax = np.full(m, -1.0)
         if len(starts):
-            nb = np.where(unc[dst], priority[dst], -1.0)
-            vmax[src[starts]] = np.maximum.reduceat(nb, starts)
+            vmax[src[starts]] = np.maximum.reduceat(priority[dst], starts)
         vmax = sub.reduce(vmax, "max")
         new = np.flatnonzero(unc & (vmax < priority))
-        is_new = np.zeros(m, dtype=bool)
-        is_new[new] = True
-        sel = is_new[src]
-        s2, cd = src[sel], colour[dst[sel]]
-        st2 = np.flatnonzero(np.diff(s2, prepend=-1))
-        used = np.zeros(m, dtype=np.int64)  # bit c: a neighbour has colour c
-        if len(st2):
-            bits = np.where(cd >= 0, np.left_shift(1, np.maximum(cd, 0)), 0)
-            used[s2[st2]] = np.bitwise_or.reduceat(bits, st2)
-        if sub.map is not None:
-            nbits = sub.comm.allreduce(int(colour.max(initial=-1)) + 1, op=MPI.MAX)
-            b = 2 ** np.arange(nbits, dtype=np.int64)
-            flags = sub.reduce(((used[:, None] & b[None]) > 0).astype(np.float64), "max")
-            used = (flags > 0).astype(np.int64) @ b
         un = used[new]
         free = ~un & (un + 1)  # the lowest colour not used
         if len(new) and (free.min() <= 0 or free.max() >= 2**_MAX_COLOURS):
             raise RuntimeError(f"vertex colouring: more than {_MAX_COLOURS} colours needed")
         colour[new] = np.round(np.log2(free.astype(np.float64))).astype(np.int64)
+        # The new colours go into the masks of their (uncoloured) neighbours.
+        is_new = np.zeros(m, dtype=bool)
+        is_new[new] = True
+        sel = is_new[dst]
+        s2 = src[sel]
+        st2 = np.flatnonzero(np.diff(s2, prepend=-1))
+        if len(st2):
+            bits = np.left_shift(1, colour[dst[sel]])
+            used[s2[st2]] |= np.bitwise_or.reduceat(bits, st2)
+        if sub.map is not None:
+            nbits = sub.comm.allreduce(int(colour.max(initial=-1)) + 1, op=MPI.MAX)
+            b = 2 ** np.arange(nbits, dtype=np.int64)
+            flags = sub.reduce(((used[:, None] & b[None]) > 0).astype(np.float64), "max")
+            used = (flags > 0).astype(np.int64) @ b
     return colour
 
 
@@ -323,6 +323,19 @@ def relax_tetrahedra(
     hmax = MAX_STEP * h[verts]
     hmin = MIN_STEP * h[verts]
     todo = np.ones(m, dtype=bool)
+    rowof = np.zeros(m, dtype=np.int64)  # scratch: the row of each vertex of S
+
+    def _rows(S: Int, at: Int | slice, vals: Float, op: str, fill: float = np.inf) -> Float:
+        """Per-vertex values ``vals`` at rows ``at`` of ``S`` (``fill`` elsewhere), reduced
+        over the ranks with ``op``: one row per vertex of ``S``."""
+        out = np.full((len(S),) + vals.shape[1:], fill)
+        out[at] = vals
+        if sub.map is None:
+            return out
+        every = np.full((m,) + vals.shape[1:], fill)
+        every[S] = out
+        return sub.reduce(every, op)[S]
+
     num_moves, done = 0, 0
     for sweep in range(sweeps):
         sweep_start = clock
@@ -338,33 +351,32 @@ def relax_tetrahedra(
                 continue
             lo, hi = bounds[k], bounds[k + 1]
             E = lo + np.flatnonzero(todo[ev[lo:hi]])
-            # The worst tetrahedron of each vertex's star.
+            # The worst tetrahedron of each vertex's star (per row of S).
             vE = ev[E]
-            starts = np.flatnonzero(np.diff(vE, prepend=-1))
-            qv = np.full(m, np.inf)
-            qv[vE[starts]] = _segment_min(qcell[cell_idx[E]], starts)
-            qv = sub.reduce(qv, "min")
-            work = np.zeros(m, dtype=bool)
-            work[S] = (qv[S] < ACTIVE_BELOW) & (qv[S] > -1.0)
-            # Only the entries of the vertices to work on, from here.
-            E = E[work[vE]]
+            rowof[S] = np.arange(len(S))
+            rE = rowof[vE]
+            starts = np.flatnonzero(np.diff(rE, prepend=-1))
+            qv = _rows(S, rE[starts], _segment_min(qcell[cell_idx[E]], starts), "min")
+            work = (qv < ACTIVE_BELOW) & (qv > -1.0)
+            # Only the vertices to work on and their entries, from here.
+            keep = work[rE]
+            E, S, q0 = E[keep], S[work], qv[work]
             vE = ev[E]
+            rowof[S] = np.arange(len(S))
+            rE = rowof[vE]
             (ux, uy, uz), (nx, ny, nz), lsq, s, L, q = _star(E)
-            starts = np.flatnonzero(np.diff(vE, prepend=-1))
+            starts = np.flatnonzero(np.diff(rE, prepend=-1))
             # Ascent direction: the near-worst entries' unit gradients, weighted.
-            nw = np.flatnonzero(q < qv[vE] + NEAR_WORST)
+            q0E = q0[rE]
+            nw = np.flatnonzero(q < q0E + NEAR_WORST)
             wg = ascent_gradients(
-                q[nw], qv[vE[nw]], s[nw], L[nw], (ux[nw], uy[nw], uz[nw]),
+                q[nw], q0E[nw], s[nw], L[nw], (ux[nw], uy[nw], uz[nw]),
                 (nx[nw], ny[nw], nz[nw]),
             )  # fmt: skip
-            dv = np.empty((m, 3))
+            dv = np.empty((len(S), 3))
             for i, wgi in enumerate(wg):
-                dv[:, i] = np.bincount(vE[nw], weights=wgi, minlength=m)
-            S = S[work[S]]
-            dv = sub.reduce(dv, "sum")[S]  # (rows of S, from here)
-            rowS = np.full(m, -1, dtype=np.int64)
-            rowS[S] = np.arange(len(S))
-            rE = rowS[vE]
+                dv[:, i] = np.bincount(rE[nw], weights=wgi, minlength=len(S))
+            dv = _rows(S, slice(None), dv, "sum", 0.0)
             gs = np.flatnonzero(gamma_v[S])
             if len(gs):  # in the tangent plane
                 nn = nrm[verts[S[gs]]]
@@ -379,11 +391,7 @@ def relax_tetrahedra(
             beta2 *= 2.0
             t = LINE_STEPS[:, None] * step[vE][None]  # (steps, entries)
             qt = line_quality(s, L, sig, beta2, t)  # (caps: rated below, on Gamma)
-            qs = np.full((m, len(LINE_STEPS)), np.inf)
-            if len(starts):
-                qs[vE[starts]] = _segment_min(qt, starts).T
-            qs = sub.reduce(qs, "min")[S]
-            q0 = qv[S]
+            qs = _rows(S, rE[starts], _segment_min(qt, starts).T, "min")
             # The first step within TIE of the best, taken if it beats staying by > TIE.
             best = np.argmax(qs >= qs.max(axis=1, initial=-np.inf)[:, None] - TIE, axis=1)
             qb = qs[np.arange(len(S)), best]
@@ -394,10 +402,9 @@ def relax_tetrahedra(
             qnew = qt[best[rE], np.arange(len(E))]
             # Inside vertices stuck along their direction (a kink of three or more worst
             # tetrahedra): a compass of COMPASS directions at COMPASS_STEPS times the step.
-            stuck = np.zeros(m, dtype=bool)
-            stuck[S] = ~gain & ~gamma_v[S]
+            stuck = ~gain & ~gamma_v[S]
             if comm.allreduce(bool(stuck.any()), op=MPI.LOR) and len(COMPASS_STEPS):
-                cs = np.flatnonzero(stuck[vE])
+                cs = np.flatnonzero(stuck[rE])
                 dirs = tet.directions(COMPASS, sweep * ncol + k)
                 sx, sy, sz = (v[cs] for v in (ux, uy, uz))
                 sig = (
@@ -411,22 +418,20 @@ def relax_tetrahedra(
                 tc = COMPASS_STEPS[:, None, None] * step[vE[cs]][None, None]  # (ns, 1, n)
                 qc = line_quality(s[cs], L[cs], sig[None], beta2[None], tc)
                 qc = qc.reshape(COMPASS * len(COMPASS_STEPS), len(cs))  # (the same on all ranks)
-                sc = np.flatnonzero(np.diff(vE[cs], prepend=-1))
-                qsc = np.full((m, qc.shape[0]), np.inf)
-                if len(sc):
-                    qsc[vE[cs][sc]] = _segment_min(qc, sc).T
-                qsc = sub.reduce(qsc, "min")[S]
+                rc = rE[cs]
+                sc = np.flatnonzero(np.diff(rc, prepend=-1))
+                qsc = _rows(S, rc[sc], _segment_min(qc, sc).T, "min")
                 bc = np.argmax(qsc >= qsc.max(axis=1, initial=-np.inf)[:, None] - TIE, axis=1)
                 qbc = qsc[np.arange(len(S)), bc]
-                take = stuck[S] & (qbc > q0 + TIE)
+                take = stuck & (qbc > q0 + TIE)
                 jc, ic = np.divmod(bc, COMPASS)
                 tcb = COMPASS_STEPS[jc] * step[S]
                 gain |= take
                 new[take] = y[verts[S[take]]] + (tcb[:, None] * dirs[ic])[take]
                 tb[take] = tcb[take]
                 qb[take] = qbc[take]
-                tk = take[rE[cs]]
-                qnew[cs[tk]] = qc[bc[rE[cs[tk]]], np.flatnonzero(tk)]
+                tk = take[rc]
+                qnew[cs[tk]] = qc[bc[rc[tk]], np.flatnonzero(tk)]
             # Vertices on Gamma: fractions of the best step, projected and rated exactly.
             gi = np.flatnonzero(gamma_v[S] & (dn > 0.0))
             if comm.allreduce(len(gi) > 0, op=MPI.LOR):
@@ -444,10 +449,10 @@ def relax_tetrahedra(
                     comm, "closest-point projection", closest_normal, pc.reshape(-1, 3)
                 )
                 pp, pn = pp.reshape(len(G), ns, 3), pn.reshape(len(G), ns, 3)
-                row = np.full(m, -1, dtype=np.int64)
-                row[G] = np.arange(len(G))
-                eg = np.flatnonzero(row[vE] >= 0)
-                rg = row[vE[eg]]
+                gpos = np.full(len(S), -1, dtype=np.int64)
+                gpos[gi] = np.arange(len(G))
+                eg = np.flatnonzero(gpos[rE] >= 0)
+                rg = gpos[rE[eg]]
                 pcx, pcy, pcz = (np.ascontiguousarray(pp[..., i].T) for i in range(3))
                 ip = pv[E[eg]]
                 face = tet.StarFaces(
@@ -457,9 +462,9 @@ def relax_tetrahedra(
                 qg = tet.star_quality(pcx[:, rg], pcy[:, rg], pcz[:, rg], face)  # (ns, entries)
                 qg[:, flat[E[eg]]] = -1.0
                 sg = np.flatnonzero(np.diff(rg, prepend=-1))
-                qsg = np.full((m, ns), np.inf)
+                qsg = np.full((len(G), ns), np.inf)
                 if len(sg):
-                    qsg[vE[eg][sg]] = _segment_min(qg, sg).T
+                    qsg[rg[sg]] = _segment_min(qg, sg).T
                 # A slide may not stretch an edge of Gamma_h beyond its cap.
                 cnt = cap_ptr[G + 1] - cap_ptr[G]
                 cfirst = np.cumsum(cnt) - cnt
@@ -468,12 +473,11 @@ def relax_tetrahedra(
                 w = cap_w[ce]
                 dx, dy, dz = pcx[:, cr] - yc[0][w], pcy[:, cr] - yc[1][w], pcz[:, cr] - yc[2][w]
                 long = dx * dx + dy * dy + dz * dz > cap_len2[ce]  # (ns, cap rows)
-                has = cnt > 0
-                if has.any():
+                has = np.flatnonzero(cnt > 0)
+                if len(has):
                     over = np.logical_or.reduceat(long, cfirst[has], axis=1)
-                    Gh = G[has]
-                    qsg[Gh] = np.where(over.T, -1.0, qsg[Gh])
-                qsg = sub.reduce(qsg, "min")[G]
+                    qsg[has] = np.where(over.T, -1.0, qsg[has])
+                qsg = _rows(G, slice(None), qsg, "min")
                 bg = np.argmax(qsg >= qsg.max(axis=1, initial=-np.inf)[:, None] - TIE, axis=1)
                 rows = np.arange(len(G))
                 qb[gi] = qsg[rows, bg]
@@ -482,7 +486,7 @@ def relax_tetrahedra(
                 tb[gi] = tg[rows, bg]
                 slid = gain[gi]
                 nrm[verts[G[slid]]] = pn[rows, bg][slid]
-                qnew[eg] = qg[bg[row[vE[eg]]], np.arange(len(eg))]
+                qnew[eg] = qg[bg[rg], np.arange(len(eg))]
             win = S[gain]
             y[verts[win]] = new[gain]
             for i in range(3):
