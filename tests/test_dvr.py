@@ -215,3 +215,44 @@ def test_relaxation_is_deterministic():
     perm = np.random.default_rng(0).permutation(len(cells))
     c = _relax(x, y, cells[perm][:, [1, 2, 0, 3]], inner)
     assert np.abs(c.y - a.y).max() < 1e-12
+
+
+def test_star_terms_match_star_faces():
+    """The terms on separate coordinate arrays are those of star_faces / star_quality."""
+    rng = np.random.default_rng(5)
+    n = 3000
+    p, a, b, c = _random_entries(rng, n)
+    y = np.concatenate([p, a, b, c]) + 10.0  # off the origin: the centroid's rounding
+    ip, ia, ib, ic = (np.arange(n) + i * n for i in range(4))
+    yc = (y[:, 0].copy(), y[:, 1].copy(), y[:, 2].copy())
+    u, nrm, lsq, s, L = _dvr.star_terms(yc, ip, ia, ib, ic)
+    face = tet.star_faces(y[ia], y[ib], y[ic])
+    scale = np.linalg.norm(np.stack([face.nx, face.ny, face.nz]), axis=0)
+    for mine, ref in zip(nrm, (face.nx, face.ny, face.nz)):
+        assert np.all(np.abs(mine - ref) <= 1e-12 * scale + 1e-300)
+    assert np.allclose(lsq, face.lsq, rtol=1e-13, atol=0)
+    q = np.where(s > 0, np.cbrt(s) ** 2 / L, -1.0)
+    ref = tet.star_quality(y[ip, 0], y[ip, 1], y[ip, 2], face)
+    clear = np.abs(s) > 1e-6 * np.sqrt(L) * scale
+    assert clear.mean() > 0.6 and np.array_equal(q[clear] > -1, ref[clear] > -1)
+    assert np.allclose(q[clear], ref[clear], rtol=1e-11, atol=0)
+
+
+def test_vertex_colours_graph():
+    """The colours of relax.vertex_colours (first fit in the same rounds), a proper
+    colouring of the vertices of each cell; -1 corners are not coloured."""
+    from dolfinx_universal.relax import _Sub, coordinate_priority, vertex_colours
+
+    x, _, cells, inner = _perturbed_a15(4)
+    local = np.full(len(x), -1)
+    local[inner] = np.arange(int(inner.sum()))
+    csub = local[cells]
+    sub = _Sub(_SerialMap(), np.flatnonzero(inner))
+    pr = coordinate_priority(x[inner])
+    colour = _dvr.vertex_colours_graph(sub, csub, pr)
+    assert np.array_equal(colour, vertex_colours(sub, csub, pr))
+    assert colour.min() == 0
+    for i in range(4):
+        for j in range(i + 1, 4):
+            both = (csub[:, i] >= 0) & (csub[:, j] >= 0)
+            assert np.all(colour[csub[both, i]] != colour[csub[both, j]])
