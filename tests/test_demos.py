@@ -172,3 +172,47 @@ def test_quality_3d_demo(tmp_path):
     # The same meshes on 2 ranks (up to rounding); times differ and are left out.
     parallel = _run("quality_3d.py", 2, tmp_path / "p")
     _same_run(_without_seconds(serial), _without_seconds(parallel), rtol=1e-9)
+
+
+def test_poisson_3d_demo(tmp_path):
+    serial = _run("poisson_3d.py", 1, tmp_path / "s")
+    assert {"rows", "rates", "seconds"} | SUMMARY_KEYS == serial.keys()
+    assert serial["parameters"]["quick"] is True
+    assert serial["parameters"]["h"] == {k: [0.4, 0.2] for k in ("1", "2", "3")}
+    assert serial["reference"]["optimal_rates"][0] == {"k": 1, "L2": 2, "H1": 1}
+    rows, rates = serial["rows"], serial["rates"]
+    assert set(rows[0]) == {
+        "surface",
+        "k",
+        "q",
+        "h",
+        "n_cells",
+        "dofs",
+        "boundary_dof_distance",
+        "L2",
+        "H1",
+        "solver",
+        "iterations",
+        "seconds",
+    }
+    assert set(rows[0]["seconds"]) == {"mesh", "solve", "errors"}
+    cases = {(1, 1), (2, 2), (3, 3), (2, 1)}
+    assert len(rows) == 3 * 2 * len(cases)
+    assert {(r["k"], r["q"]) for r in rows} == cases
+    assert {r["surface"] for r in rows} == {"ball", "ellipsoid", "torus"}
+    for r in rows:  # the boundary dofs of the curved meshes lie on the surface
+        assert (r["boundary_dof_distance"] < 1e-12) == (r["q"] == r["k"]), r
+    # Even on the two quick sizes the curved rates are about optimal, and the straight P2
+    # has lost its order (L2 about 2, H1 about 1.5).
+    for r in rates:
+        k = r["k"]
+        if r["q"] == k:
+            assert r["L2_rate"] > k + 1 - 0.3 and r["H1_rate"] > k - 0.2, r
+        else:
+            assert r["L2_rate"] < k + 0.2 and r["H1_rate"] < k - 0.3, r
+    for name in ("convergence.png", "ball_mesh.png"):
+        assert (tmp_path / "s" / name).stat().st_size > 10_000
+    # The same meshes on 2 ranks, the same discrete problems (MUMPS): the same errors up
+    # to the solver's rounding; times differ and are left out.
+    parallel = _run("poisson_3d.py", 2, tmp_path / "p")
+    _same_run(_without_seconds(serial), _without_seconds(parallel), rtol=1e-9)
