@@ -27,7 +27,9 @@
 # - measure the dihedral angles, the volume error and the time of each stage with
 #   {py:func}`dolfinx_universal.quality_report` and `ConformingMesh.timings`,
 # - draw a clipped view of a tetrahedral mesh with
-#   {py:func}`dolfinx_universal.plotting.plot_tetrahedra`.
+#   {py:func}`dolfinx_universal.plotting.plot_tetrahedra`,
+# - measure the same surfaces through {py:func}`dolfinx_universal.mesh_domain`, on the
+#   background it chooses and on a graded octree with its transition cells.
 #
 # Run it with
 #
@@ -37,9 +39,9 @@
 # ```
 #
 # (same meshes on any number of ranks; `--quick` keeps $h = R/4$ and $R/8$ and two
-# placements). In a notebook, call `main(["--quick"])`. The output folder (default
-# `out/quality_3d`) receives `summary.json` and the figures `meshes.png` (clipped views)
-# and `dihedral_histogram.png`.
+# placements, one through `mesh_domain`). In a notebook, call `main(["--quick"])`. The
+# output folder (default `out/quality_3d`) receives `summary.json` and the figures
+# `meshes.png` (clipped views) and `dihedral_histogram.png`.
 #
 # ## The method in 3D
 #
@@ -278,6 +280,196 @@ def summarise(comm: MPI.Comm, runs: list[dict]) -> dict:
 
 # -
 
+# ## Through `mesh_domain`
+#
+# The study above conforms a background that we build ourselves. A user calls
+# {py:func}`dolfinx_universal.mesh_domain` instead, which sizes the background from the
+# surface, chooses it, conforms it and refines it locally where a check fails. The second
+# table measures the same three surfaces through that call, with the size near $\Gamma$
+# forced to $h = R/4, R/8, R/16$ (and $R/32$ for the sphere) by `size_factor`: the target
+# size near $\Gamma$ is the local feature size over `size_factor`
+# ({py:func}`dolfinx_universal.sizing.target_sizes`), and both tetrahedral backgrounds take
+# the smallest target on a surface (the A15 one everywhere, the graded octree in its
+# uniform band), so `size_factor` $= n\, f_{\min}$, with $f_{\min}$ the smallest feature size
+# that `mesh_domain` samples (1 on the sphere, 0.25 at the tips of the ellipsoid, 0.35 on
+# the torus), gives $h = R/n$; the certificate's `h_min` confirms it. The largest size is
+# $R$. Two set-ups:
+#
+# - `auto`: `tet_background="auto"` in the default box's extent (the bounding box plus
+#   $(R_r/h + 2) h = 5h$), where `mesh_domain` takes the graded BCC octree only if it has
+#   fewer than half the tetrahedra of the A15 lattice;
+# - `graded`: `tet_background="graded"` in a box three times the surface's extent, so that
+#   the octree grades: uniform BCC in a band of $5h$ inside $\Gamma$ and $2h$ outside, then
+#   coarser, with the *transition cells* at the level changes (the half pyramids reach 120
+#   degrees before any relaxation, and the relaxation leaves them alone).
+#
+# A placement is a random rotation and a translation of the surface by $u\,a$, with the
+# box fixed by the rotated surface before the translation (one period $a = 4^{1/3} h$ more
+# on its upper sides), so that the background's lattice moves relative to the surface as
+# in the first table (the default box would follow the surface). The full run takes 4
+# placements at $R/4$ and $R/8$, 2 at $R/16$ and 1 at $R/32$; the quick run 1 at $R/4$ and
+# $R/8$. Per mesh we record the background used (from the certificate), the tetrahedra,
+# the extreme dihedral angles over all cells (the certificate's) and over the transition
+# cells (the cells whose background tetrahedron is not a BCC one: its dihedral angles are
+# not four of 60 and two of 90 degrees; none on the A15 lattice), the refinement rounds,
+# $|\delta V / V| / h^2$ and the time of the whole call.
+
+# +
+DOMAIN_SETUPS = ("auto", "graded")
+DOMAIN_PLACEMENTS = {4: 4, 8: 4, 16: 2, 32: 1}  # placements per R / h (full run)
+BOX_FACTOR = 3.0  # the graded set-up's box: BOX_FACTOR times the surface's extent
+BCC_ANGLES = np.array([60.0, 60.0, 60.0, 60.0, 90.0, 90.0])  # a BCC tetrahedron, sorted
+SHORT = {"A15 uniform": "A15", "graded BCC octree": "octree"}
+
+
+def domain_once(comm: MPI.Comm, name: str, setup: str, n: int, placement) -> dict:
+    """One call of ``mesh_domain`` with the size ``R / n`` near the surface: its row."""
+    from dolfinx_universal.sizing_3d import surface_feature_size
+
+    rotation, u = placement
+    h, period = 1.0 / n, np.cbrt(4.0) / n
+    upright = surface(name, rotation, np.zeros(3))
+    lo, hi = np.asarray(upright.bounding_box(), dtype=np.float64)
+    if setup == "auto":
+        margin = 5.0 * h  # the default box: (relaxation_factor + 2) h
+        box = np.array([lo - margin, hi + margin + period])
+    else:
+        centre, extent = 0.5 * (lo + hi), hi - lo
+        box = np.array([centre - 0.5 * BOX_FACTOR * extent, centre + 0.5 * BOX_FACTOR * extent])
+        box[1] += period
+    boundary = surface(name, rotation, u * period)
+    # mesh_domain samples the feature size at a quarter of its largest size (R): the same
+    # samples here, so that the smallest target size is exactly h.
+    factor = n * float(surface_feature_size(boundary, 0.25).feature.min())
+    t0 = time.perf_counter()
+    md = du.mesh_domain(comm, boundary, 1.0, size_factor=factor, box=box, tet_background=setup)
+    seconds = comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
+    c, cm = md.certificate, md.conforming
+    nco = cm.mesh.topology.index_map(3).size_local
+    cells = cm.cells[:nco]
+    volume = comm.allreduce(float(np.abs(signed_volumes(cm.x, cells)).sum()), op=MPI.SUM)
+    exact = SHAPES[name]["volume"]
+    lo_t, hi_t, n_t, n_pyramids = 180.0, 0.0, 0, 0
+    if c.background == "graded BCC octree":  # transition cells: not BCC in the background
+        bg = cm.background
+        owned = bg.geometry.dofmaps[0][: bg.topology.index_map(3).size_local]
+        n_pyramids = int((dihedral_angles(bg.geometry.x, owned) > np.radians(91.0)).any(1).sum())
+        shape = np.degrees(
+            dihedral_angles(bg.geometry.x, bg.geometry.dofmaps[0][cm.cell_map[:nco]])
+        )
+        transition = np.abs(np.sort(shape, axis=1) - BCC_ANGLES).max(axis=1) > 1e-6
+        if transition.any():
+            angles = np.degrees(dihedral_angles(cm.x, cells[transition]))
+            lo_t, hi_t, n_t = float(angles.min()), float(angles.max()), int(transition.sum())
+    n_t, n_pyramids = comm.allreduce(n_t, op=MPI.SUM), comm.allreduce(n_pyramids, op=MPI.SUM)
+    lo_t, hi_t = comm.allreduce(lo_t, op=MPI.MIN), comm.allreduce(hi_t, op=MPI.MAX)
+    return {
+        "shape": name,
+        "setup": setup,
+        "h_over_R": h,
+        "size_factor": factor,
+        "box": box.tolist(),
+        "background": c.background,
+        "h_min": c.h_min,
+        "n_cells": c.num_cells,
+        "n_background_cells": c.num_background_cells,
+        "n_background_half_pyramids": n_pyramids,
+        "theta_min_deg": c.min_angle_deg,
+        "theta_max_deg": c.max_angle_deg,
+        "n_transition": n_t,
+        "transition_theta_min_deg": lo_t if n_t else None,
+        "transition_theta_max_deg": hi_t if n_t else None,
+        "refinement_rounds": c.refinement_rounds,
+        "refinements": list(c.refinements),
+        "volume_error_over_h2": (volume - exact) / exact / c.h_min**2,
+        "seconds": seconds,
+    }
+
+
+def domain_study(comm: MPI.Comm, quick: bool) -> tuple[list[dict], list[dict]]:
+    """All ``mesh_domain`` calls: their rows and the table (printed)."""
+    rows, table = [], []
+    log(
+        comm,
+        f"\nthrough mesh_domain\n{'shape':<9} {'setup':<6} {'h/R':>5} {'runs':>4} "
+        f"{'background':<10} {'cells':>7} {'min dihedral':>13} {'max dihedral':>13} "
+        f"{'half pyr.':>9} {'transition cells':>20} {'rounds':>6} {'|dV/V|/h^2':>10} "
+        f"{'seconds':>7}",
+    )
+    log(
+        comm,
+        f"{'':<9} {'':<6} {'':>5} {'':>4} {'':<10} {'':>7} {'worst median':>13} "
+        f"{'worst median':>13} {'in bg':>9} {'count   min    max':>20}",
+    )
+    for index, name in enumerate(SHAPES):
+        levels = [4, 8] if quick else [4, 8, 16] + ([32] if name == "sphere" else [])
+        for setup in DOMAIN_SETUPS:
+            for n in levels:
+                count = 1 if quick else DOMAIN_PLACEMENTS[n]
+                runs = [domain_once(comm, name, setup, n, p) for p in placements(index, count)]
+                rows += runs
+                table.append(domain_summary(comm, runs))
+    return rows, table
+
+
+def domain_summary(comm: MPI.Comm, runs: list[dict]) -> dict:
+    """Worst and median over the placements of one (shape, set-up, h); printed."""
+    r0 = runs[0]
+    lo = np.array([r["theta_min_deg"] for r in runs])
+    hi = np.array([r["theta_max_deg"] for r in runs])
+    dv = np.abs([r["volume_error_over_h2"] for r in runs])
+    trans = [r for r in runs if r["n_transition"]]
+    entry = {
+        "shape": r0["shape"],
+        "setup": r0["setup"],
+        "h_over_R": r0["h_over_R"],
+        "placements": len(runs),
+        "backgrounds": sorted({r["background"] for r in runs}),
+        "n_cells_median": float(np.median([r["n_cells"] for r in runs])),
+        "theta_min_worst": float(lo.min()),
+        "theta_min_median": float(np.median(lo)),
+        "theta_max_worst": float(hi.max()),
+        "theta_max_median": float(np.median(hi)),
+        "n_background_half_pyramids_median": float(
+            np.median([r["n_background_half_pyramids"] for r in runs])
+        ),
+        "n_transition_median": float(np.median([r["n_transition"] for r in runs])),
+        "transition_theta_min_worst": min(
+            (r["transition_theta_min_deg"] for r in trans), default=None
+        ),
+        "transition_theta_max_worst": max(
+            (r["transition_theta_max_deg"] for r in trans), default=None
+        ),
+        "refinement_rounds_max": max(r["refinement_rounds"] for r in runs),
+        "volume_error_over_h2_worst": float(dv.max()),
+        "volume_error_over_h2_median": float(np.median(dv)),
+        "within_targets": bool(lo.min() >= TARGETS[0] and hi.max() <= TARGETS[1]),
+        "within_stretch": bool(lo.min() >= STRETCH[0] and hi.max() <= STRETCH[1]),
+        "seconds_mean": float(np.mean([r["seconds"] for r in runs])),
+    }
+    bg = "+".join(SHORT.get(b, b) for b in entry["backgrounds"])
+    if trans:
+        t = (
+            f"{entry['n_transition_median']:6.0f} {entry['transition_theta_min_worst']:6.2f} "
+            f"{entry['transition_theta_max_worst']:6.2f}"
+        )
+    else:
+        t = f"{0:6d} {'-':>6} {'-':>6}"
+    log(
+        comm,
+        f"{entry['shape']:<9} {entry['setup']:<6} 1/{round(1 / entry['h_over_R']):<3} "
+        f"{len(runs):>4} {bg:<10} {entry['n_cells_median']:7.0f} "
+        f"{entry['theta_min_worst']:6.2f} {entry['theta_min_median']:6.2f} "
+        f"{entry['theta_max_worst']:6.2f} {entry['theta_max_median']:6.2f} "
+        f"{entry['n_background_half_pyramids_median']:9.0f} {t:>20} "
+        f"{entry['refinement_rounds_max']:6d} {entry['volume_error_over_h2_worst']:10.3f} "
+        f"{entry['seconds_mean']:7.2f}",
+    )
+    return entry
+
+
+# -
+
 # ## Figures
 #
 # `meshes.png` shows, for each shape on the A15 background with $h = R/8$ (the first
@@ -340,7 +532,8 @@ def histogram_figure(comm: MPI.Comm, hists: dict, out: Path) -> None:
 #
 # `main` runs the study, draws the figures and writes `summary.json`: every conforming
 # mesh (`rows`), the table (`table`), the dihedral histograms (`histograms`, counts in
-# 1-degree bins by lattice and $R/h$), the set-up (`parameters`) and the targets
+# 1-degree bins by lattice and $R/h$), the meshes through `mesh_domain` and their table
+# (`mesh_domain`: `rows` and `table`), the set-up (`parameters`) and the targets
 # (`reference`).
 
 
@@ -350,6 +543,7 @@ def main(argv: Sequence[str] | None = None) -> dict:
     args = demo_options("Mesh quality of universal meshes in 3D", "out/quality_3d", argv)
     comm = MPI.COMM_WORLD
     rows, table, hists, drawn = study(comm, args.quick)
+    domain_rows, domain_table = domain_study(comm, args.quick)
     mesh_figure(comm, drawn, args.out)
     histogram_figure(comm, hists, args.out)
     parameters = {
@@ -365,6 +559,18 @@ def main(argv: Sequence[str] | None = None) -> dict:
         "placements": "random rotation (none for the sphere) and translation within one "
         "lattice period, seeded; the same for both lattices",
         "conform": {"eta": 0.2, "R_r_over_h": 3.0, "relax": True},
+        "mesh_domain": {
+            "setups": {
+                "auto": 'tet_background="auto", the default box\'s extent (bounding box '
+                "plus 5 h) plus one A15 period on the upper sides",
+                "graded": 'tet_background="graded", a box of 3 times the surface\'s extent '
+                "plus one A15 period on the upper sides",
+            },
+            "h_max_over_R": 1.0,
+            "size_factor": "n times the smallest sampled feature size: h = R / n near Gamma",
+            "placements": "random rotation (none for the sphere) and translation within one "
+            "A15 period of the surface in a box fixed before the translation, seeded",
+        },
     }
     reference = {
         "source": "Rangarajan, Kabaria & Lew (2019), IJNME: universal meshes for smooth "
@@ -377,9 +583,11 @@ def main(argv: Sequence[str] | None = None) -> dict:
         lattice: {str(n): c.tolist() for n, c in by_h.items()} for lattice, by_h in hists.items()
     }
     results = {"rows": rows, "table": table, "histograms": histograms}
+    results["mesh_domain"] = {"rows": domain_rows, "table": domain_table}
     path = write_summary(comm, args.out, results, parameters=parameters, reference=reference)
     log(comm, f"\nwrote {path} and figures")
     check(rows, table)
+    check_domain(domain_rows)
     return results
 
 
@@ -389,7 +597,11 @@ def main(argv: Sequence[str] | None = None) -> dict:
 #
 # No tetrahedron is inverted, and the volume error stays below $h^2$ on every mesh. On
 # the A15 background every mesh meets the targets; the table's `within_targets` and
-# `within_stretch` columns say which rows of both lattices do.
+# `within_stretch` columns say which rows of both lattices do. Through `mesh_domain` the
+# size near $\Gamma$ is the one asked for (unless a check refined it), and the volume error
+# stays below $h^2$; `within_targets` and `within_stretch` say which rows meet the targets
+# (the BCC band of the graded octree, like the BCC lattice above, can fall a few degrees
+# short of 30 degrees at some placements).
 
 
 # +
@@ -400,6 +612,12 @@ def check(rows: list[dict], table: list[dict]) -> None:
     for t in table:
         if t["lattice"] == "A15":
             assert t["within_targets"], t
+
+
+def check_domain(rows: list[dict]) -> None:
+    for r in rows:
+        assert abs(r["h_min"] - r["h_over_R"]) < 1e-9 * r["h_over_R"] or r["refinement_rounds"], r
+        assert abs(r["volume_error_over_h2"]) < 1.0, r
 
 
 # -
