@@ -120,7 +120,7 @@ def _without_seconds(value):
 
 def test_quality_3d_demo(tmp_path):
     serial = _run("quality_3d.py", 1, tmp_path / "s")
-    assert {"rows", "table", "histograms"} | SUMMARY_KEYS == serial.keys()
+    assert {"rows", "table", "histograms", "mesh_domain"} | SUMMARY_KEYS == serial.keys()
     assert serial["parameters"]["quick"] is True
     assert serial["reference"]["targets_deg"] == [30.0, 125.0]
     rows, table = serial["rows"], serial["table"]
@@ -169,6 +169,16 @@ def test_quality_3d_demo(tmp_path):
             assert len(counts) == 180 and sum(counts) == 6 * cells[lattice][n]
     for name in ("meshes.png", "dihedral_histogram.png"):
         assert (tmp_path / "s" / name).stat().st_size > 10_000
+    # Through mesh_domain: 3 shapes x 2 set-ups x 2 sizes, 1 placement each, at the size
+    # asked for; the auto set-up takes A15 in its small box, the graded one grades.
+    md = serial["mesh_domain"]
+    assert len(md["table"]) == 12 and len(md["rows"]) == 12
+    for r in md["rows"]:
+        assert r["h_min"] == pytest.approx(r["h_over_R"]) and r["refinement_rounds"] == 0, r
+        assert r["background"] == {"auto": "A15 uniform", "graded": "graded BCC octree"}[r["setup"]]
+        assert (r["n_background_half_pyramids"] > 0) == (r["setup"] == "graded"), r
+        assert 20 < r["theta_min_deg"] and r["theta_max_deg"] < 130, r
+        assert 0 < abs(r["volume_error_over_h2"]) < 1, r
     # The same meshes on 2 ranks (up to rounding); times differ and are left out.
     parallel = _run("quality_3d.py", 2, tmp_path / "p")
     _same_run(_without_seconds(serial), _without_seconds(parallel), rtol=1e-9)
