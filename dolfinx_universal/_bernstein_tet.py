@@ -26,6 +26,7 @@ __all__ = [
     "inverse_collocation",
     "lagrange",
     "lattice_derivatives",
+    "readonly",
     "subdivision",
 ]
 
@@ -50,7 +51,8 @@ CHILDREN = np.array(
 each of volume 1/48."""
 
 
-def _readonly(a: np.ndarray) -> np.ndarray:
+def readonly(a: np.ndarray) -> np.ndarray:
+    """``a``, made read-only (cached tables are shared)."""
     a.setflags(write=False)
     return a
 
@@ -81,7 +83,7 @@ def bernstein_indices(order: int) -> Int:
         for j in range(order + 1 - i)
         for k in range(order + 1 - i - j)
     ]
-    return _readonly(np.array(rows, dtype=np.int64).reshape(-1, 4))
+    return readonly(np.array(rows, dtype=np.int64).reshape(-1, 4))
 
 
 def control_points(order: int) -> Float:
@@ -113,7 +115,7 @@ def bernstein_basis(order: int, points: Float) -> Float:
 @lru_cache(maxsize=16)
 def inverse_collocation(order: int) -> Float:
     """Inverse of the Bernstein collocation matrix at the control points, ``(nb, nb)``."""
-    return _readonly(np.linalg.inv(bernstein_basis(order, control_points(order))))
+    return readonly(np.linalg.inv(bernstein_basis(order, control_points(order))))
 
 
 @lru_cache(maxsize=16)
@@ -180,7 +182,7 @@ def subdivision(order: int) -> Float:
         values = bernstein_basis(order, control_points(order)) @ coefficients
         blocks += [values.T, coefficients.T]
     assert blocks[0].shape == (nb, nb)
-    return _readonly(np.hstack(blocks))
+    return readonly(np.hstack(blocks))
 
 
 @lru_cache(maxsize=16)
@@ -188,7 +190,7 @@ def lattice_derivatives(degree: int) -> Float:
     """Reference derivatives of the degree-q Lagrange basis at the degree-3(q-1) control
     points, ``(3, nb, ndofs)``."""
     pts = control_points(3 * (degree - 1))
-    return _readonly(np.ascontiguousarray(lagrange(degree).tabulate(1, pts)[1:, :, :, 0]))
+    return readonly(np.ascontiguousarray(lagrange(degree).tabulate(1, pts)[1:, :, :, 0]))
 
 
 def determinant(nodes: Float, dphi: Float) -> Float:

@@ -38,11 +38,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from functools import lru_cache
 
-import basix
 import numpy as np
 import numpy.typing as npt
 from dolfinx import la
 
+from ._bernstein_tet import lagrange
 from ._geometry import Float, Int
 
 __all__ = ["LOCAL_EDGES", "gamma_entities", "map_nodes", "reference_nodes"]
@@ -57,13 +57,6 @@ leaves a few ulps on the opposite face)."""
 
 
 @lru_cache(maxsize=16)
-def _element(degree: int) -> basix.finite_element.FiniteElement:
-    return basix.create_element(
-        basix.ElementFamily.P, basix.CellType.tetrahedron, degree, basix.LagrangeVariant.gll_warped
-    )
-
-
-@lru_cache(maxsize=16)
 def reference_nodes(degree: int) -> Float:
     """Barycentric coordinates of the degree-q GLL-warped Lagrange nodes, ``(ndofs, 4)``.
 
@@ -71,7 +64,7 @@ def reference_nodes(degree: int) -> Float:
     (vertices, edges 0-5, faces 0-3, interior). Coordinates within ``1e-13`` of 0 are 0
     (read-only).
     """
-    p = _element(degree).points
+    p = lagrange(degree).points
     lam = np.column_stack([1.0 - p.sum(axis=1), p])
     lam[np.abs(lam) < _ZERO] = 0.0
     lam.setflags(write=False)

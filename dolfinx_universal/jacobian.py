@@ -29,11 +29,6 @@ _M01, _M12, _M02 = (0.5, 0.0), (0.5, 0.5), (0.0, 0.5)
 _CHILDREN = np.array([[_P0, _M01, _M02], [_M01, _P1, _M12], [_M02, _M12, _P2], [_M12, _M02, _M01]])
 
 
-def _readonly(a: np.ndarray) -> np.ndarray:
-    a.setflags(write=False)
-    return a
-
-
 @lru_cache(maxsize=16)
 def _lagrange(degree: int) -> basix.finite_element.FiniteElement:
     """The degree-q GLL-warped Lagrange element of DOLFINx's curved coordinate maps."""
@@ -55,7 +50,7 @@ def bernstein_indices(order: int) -> Int:
     The indices, ``(nb, 3)`` with ``nb = (order + 1)(order + 2) / 2`` (read-only).
     """
     rows = [(order - i - j, i, j) for i in range(order + 1) for j in range(order + 1 - i)]
-    return _readonly(np.array(rows, dtype=np.int64))
+    return _tet.readonly(np.array(rows, dtype=np.int64))
 
 
 def _control_points(order: int) -> Float:
@@ -90,7 +85,7 @@ def _inverse_collocation(order: int) -> Float:
 
     Its condition number is 2.6, 13, 80, 515 for ``order`` 2, 4, 6, 8 (geometry degree 2-5).
     """
-    return _readonly(np.linalg.inv(bernstein_basis(order, _control_points(order))))
+    return _tet.readonly(np.linalg.inv(bernstein_basis(order, _control_points(order))))
 
 
 def _casteljau_step(order: int, w: Float) -> Float:
@@ -131,7 +126,7 @@ def _subdivision(order: int) -> Float:
             coefficients[row] = op[0]
         values = bernstein_basis(order, _control_points(order)) @ coefficients
         blocks += [values.T, coefficients.T]
-    return _readonly(np.hstack(blocks))
+    return _tet.readonly(np.hstack(blocks))
 
 
 @lru_cache(maxsize=16)
@@ -139,7 +134,7 @@ def _lattice_derivatives(degree: int) -> Float:
     """Reference derivatives of the degree-q Lagrange basis at the degree-2(q-1) control
     points, ``(2, nb, ndofs)``."""
     pts = _control_points(2 * (degree - 1))
-    return _readonly(np.ascontiguousarray(_lagrange(degree).tabulate(1, pts)[1:, :, :, 0]))
+    return _tet.readonly(np.ascontiguousarray(_lagrange(degree).tabulate(1, pts)[1:, :, :, 0]))
 
 
 def _determinant(nodes: Float, dphi: Float) -> Float:
