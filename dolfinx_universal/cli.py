@@ -19,7 +19,10 @@ import numpy as np
 import numpy.typing as npt
 
 if TYPE_CHECKING:
+    from dolfinx import mesh as dmesh
+
     from .boundaries import Boundary
+    from .conform import ConformingMesh
 
 __all__ = [
     "ArgumentError",
@@ -888,6 +891,70 @@ def _json_safe(value: Any) -> Any:
     return value
 
 
+def _mesh(
+    comm: MPI.Comm,
+    boundary: Boundary,
+    h: float,
+    box: npt.NDArray[np.float64],
+    args: argparse.Namespace,
+    uniform_background: Callable[[MPI.Comm, list[list[float]], float], dmesh.Mesh],
+    timings: dict[str, float],
+    record: Callable[[str], bool],
+) -> tuple[ConformingMesh, dmesh.Mesh, dmesh.MeshTags, dmesh.Mesh, Any, dict[str, Any]]:
+    """The conforming mesh of the CLI, curves and surfaces alike (collective): ``--uniform``
+    conforms ``uniform_background(comm, box, h)`` (and curves it for ``--degree`` > 1), else
+    :func:`mesh_domain` (its stages' times recorded where ``record(stage)``). Returns the
+    conforming mesh, the final mesh and its facet tags, the background, the certificate
+    (``None`` with ``--uniform``) and the curved map's smallest Jacobian ratio (if curved)."""
+    from .conform import conform
+    from .curved import curved_mesh
+    from .domain import mesh_domain
+
+    certificate = None
+    curved_info: dict[str, Any] = {}
+    t = time.perf_counter()
+    if args.uniform:
+        background = uniform_background(comm, box.tolist(), h)
+        timings["background"] = time.perf_counter() - t
+        t = time.perf_counter()
+        cm = conform(
+            background,
+            boundary,
+            alpha=args.alpha,
+            eta=args.eta,
+            relaxation_factor=args.rr,
+            min_angle=args.min_angle,
+        )
+        timings["conform"] = time.perf_counter() - t
+        msh, tags = cm.mesh, cm.facet_tags
+        if args.degree > 1:
+            t = time.perf_counter()
+            curved = curved_mesh(cm, args.degree, args.map)
+            msh, tags = curved.mesh, curved.facet_tags
+            curved_info["min_jacobian_ratio"] = float(curved.min_jacobian_ratio)
+            timings["curved"] = time.perf_counter() - t
+    else:
+        md = mesh_domain(
+            comm,
+            boundary,
+            h,
+            degree=args.degree,
+            map=args.map,
+            box=box if args.margin is not None else None,
+            eta=args.eta,
+            relaxation_factor=args.rr,
+            min_angle=args.min_angle,
+        )
+        cm, msh, tags, background = md.conforming, md.mesh, md.facet_tags, md.background
+        certificate = md.certificate
+        for stage, seconds in md.timings.items():
+            if stage != "total" and record(stage):
+                timings[stage] = seconds
+        if md.curved is not None:
+            curved_info["min_jacobian_ratio"] = float(md.curved.min_jacobian_ratio)
+    return cm, msh, tags, background, certificate, curved_info
+
+
 def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, Any]:
     """Mesh the domain described by parsed arguments and write the outputs (collective).
 
@@ -906,10 +973,9 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
     from dolfinx import io
 
     from .background import equilateral_mesh
-    from .conform import IMMERSED, OUTER, conform
-    from .curved import curved_mesh
+    from .conform import IMMERSED, OUTER
     from .demo_support import versions
-    from .domain import DEFAULT_MAP, default_box, mesh_domain
+    from .domain import DEFAULT_MAP, default_box
     from .io import tags_path, write_mesh
     from .quality import quality_report
     from .validation import MeshingError
@@ -952,49 +1018,10 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
             f"--h {h:.4g} would give ~{n_estimate:.3g} background cells; use a larger h"
         )
 
-    certificate = None
-    curved_info: dict[str, Any] = {}
-    t = time.perf_counter()
     try:
-        if args.uniform:
-            background = equilateral_mesh(comm, box.tolist(), h)
-            timings["background"] = time.perf_counter() - t
-            t = time.perf_counter()
-            cm = conform(
-                background,
-                boundary,
-                alpha=args.alpha,
-                eta=args.eta,
-                relaxation_factor=args.rr,
-                min_angle=args.min_angle,
-            )
-            timings["conform"] = time.perf_counter() - t
-            msh, tags = cm.mesh, cm.facet_tags
-            if args.degree > 1:
-                t = time.perf_counter()
-                curved = curved_mesh(cm, args.degree, args.map)
-                msh, tags = curved.mesh, curved.facet_tags
-                curved_info["min_jacobian_ratio"] = float(curved.min_jacobian_ratio)
-                timings["curved"] = time.perf_counter() - t
-        else:
-            md = mesh_domain(
-                comm,
-                boundary,
-                h,
-                degree=args.degree,
-                map=args.map,
-                box=box if args.margin is not None else None,
-                eta=args.eta,
-                relaxation_factor=args.rr,
-                min_angle=args.min_angle,
-            )
-            cm, msh, tags, background = md.conforming, md.mesh, md.facet_tags, md.background
-            certificate = md.certificate
-            for stage, seconds in md.timings.items():
-                if stage != "total":
-                    timings[stage] = seconds
-            if md.curved is not None:
-                curved_info["min_jacobian_ratio"] = float(md.curved.min_jacobian_ratio)
+        cm, msh, tags, background, certificate, curved_info = _mesh(
+            comm, boundary, h, box, args, equilateral_mesh, timings, lambda stage: True
+        )
     except ValueError as e:  # parameter checks (collective)
         if isinstance(e, MeshingError):
             raise
@@ -1101,10 +1128,8 @@ def _run_surface(
     from dolfinx import io
 
     from .background_tet import a15_mesh
-    from .conform import IMMERSED, OUTER, conform
-    from .curved import curved_mesh
+    from .conform import IMMERSED, OUTER
     from .demo_support import versions
-    from .domain import mesh_domain
     from .io import tags_path, write_mesh
     from .quality import quality_report
     from .validation import MeshingError
@@ -1124,49 +1149,11 @@ def _run_surface(
                 f"--h {h:.4g} would give ~{n_estimate:.3g} background cells; use a larger h"
             )
 
-    certificate = None
-    curved_info: dict[str, Any] = {}
-    t = time.perf_counter()
     try:
-        if args.uniform:
-            background = a15_mesh(comm, box.tolist(), h)
-            timings["background"] = time.perf_counter() - t
-            t = time.perf_counter()
-            cm = conform(
-                background,
-                surface,
-                alpha=args.alpha,
-                eta=args.eta,
-                relaxation_factor=args.rr,
-                min_angle=args.min_angle,
-            )
-            timings["conform"] = time.perf_counter() - t
-            msh, tags = cm.mesh, cm.facet_tags
-            if args.degree > 1:
-                t = time.perf_counter()
-                curved = curved_mesh(cm, args.degree, args.map)
-                msh, tags = curved.mesh, curved.facet_tags
-                curved_info["min_jacobian_ratio"] = float(curved.min_jacobian_ratio)
-                timings["curved"] = time.perf_counter() - t
-        else:
-            md = mesh_domain(
-                comm,
-                surface,
-                h,
-                degree=args.degree,
-                map=args.map,
-                box=box if args.margin is not None else None,
-                eta=args.eta,
-                relaxation_factor=args.rr,
-                min_angle=args.min_angle,
-            )
-            cm, background, certificate = md.conforming, md.background, md.certificate
-            msh, tags = md.mesh, md.facet_tags
-            for stage, seconds in md.timings.items():
-                if stage != "total" and (stage != "curved" or args.degree > 1):
-                    timings[stage] = seconds
-            if md.curved is not None:
-                curved_info["min_jacobian_ratio"] = float(md.curved.min_jacobian_ratio)
+        cm, msh, tags, background, certificate, curved_info = _mesh(
+            comm, surface, h, box, args, a15_mesh, timings,
+            lambda stage: stage != "curved" or args.degree > 1,
+        )  # fmt: skip
     except MeshingError as e:
         if shape["type"] == "implicit" and "Euler characteristic" in str(e):
             how = "given" if shape["topology"] == "given" else "counted on the sampling grid"
