@@ -955,6 +955,32 @@ def _mesh(
     return cm, msh, tags, background, certificate, curved_info
 
 
+def _write_mesh_files(
+    comm: MPI.Comm, out: Path, msh: dmesh.Mesh, tags: dmesh.MeshTags, degree: int
+) -> list[str]:
+    """Write the mesh with its facet tags to ``out``: a VTKHDF checkpoint (any degree), VTX
+    and, up to degree 2, XDMF (collective). Returns the names of the files written."""
+    from dolfinx import io
+
+    from .io import tags_path, write_mesh
+
+    write_mesh(out / "mesh.vtkhdf", msh, tags)  # a checkpoint for any degree, with its tags
+    files = ["mesh.vtkhdf", tags_path(out / "mesh.vtkhdf").name]
+    with io.VTXWriter(comm, out / "mesh.bp", msh, engine="BPFile") as vtx:
+        vtx.write(0.0)
+    files.append("mesh.bp")
+    if degree <= 2:
+        with io.XDMFFile(comm, out / "mesh.xdmf", "w") as xdmf:
+            xdmf.write_mesh(msh)
+            tags.name = "facet_tags"
+            xdmf.write_meshtags(tags, msh.geometry)
+        files += ["mesh.xdmf", "mesh.h5"]
+    elif comm.rank == 0:  # XDMF cannot hold degree >= 3: drop stale files of earlier runs
+        for name in ("mesh.xdmf", "mesh.h5"):
+            (out / name).unlink(missing_ok=True)
+    return files
+
+
 def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, Any]:
     """Mesh the domain described by parsed arguments and write the outputs (collective).
 
@@ -970,13 +996,11 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
         When the domain cannot be meshed with these parameters.
     """
     import dolfinx
-    from dolfinx import io
 
     from .background import equilateral_mesh
     from .conform import IMMERSED, OUTER
     from .demo_support import versions
     from .domain import DEFAULT_MAP, default_box
-    from .io import tags_path, write_mesh
     from .quality import quality_report
     from .validation import MeshingError
 
@@ -1040,20 +1064,7 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
 
     # Output files.
     t = time.perf_counter()
-    write_mesh(out / "mesh.vtkhdf", msh, tags)  # a checkpoint for any degree, with its tags
-    files = ["mesh.vtkhdf", tags_path(out / "mesh.vtkhdf").name]
-    with io.VTXWriter(comm, out / "mesh.bp", msh, engine="BPFile") as vtx:
-        vtx.write(0.0)
-    files.append("mesh.bp")
-    if args.degree <= 2:
-        with io.XDMFFile(comm, out / "mesh.xdmf", "w") as xdmf:
-            xdmf.write_mesh(msh)
-            tags.name = "facet_tags"
-            xdmf.write_meshtags(tags, msh.geometry)
-        files += ["mesh.xdmf", "mesh.h5"]
-    elif comm.rank == 0:  # XDMF cannot hold degree >= 3: drop stale files of earlier runs
-        for name in ("mesh.xdmf", "mesh.h5"):
-            (out / name).unlink(missing_ok=True)
+    files = _write_mesh_files(comm, out, msh, tags, args.degree)
     timings["write"] = time.perf_counter() - t
 
     if plot:
@@ -1125,12 +1136,10 @@ def _run_surface(
 ) -> dict[str, Any]:
     """:func:`run` for a surface: tetrahedra (collective)."""
     import dolfinx
-    from dolfinx import io
 
     from .background_tet import a15_mesh
     from .conform import IMMERSED, OUTER
     from .demo_support import versions
-    from .io import tags_path, write_mesh
     from .quality import quality_report
     from .validation import MeshingError
 
@@ -1186,20 +1195,7 @@ def _run_surface(
     timings["quality"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    write_mesh(out / "mesh.vtkhdf", msh, tags)
-    files = ["mesh.vtkhdf", tags_path(out / "mesh.vtkhdf").name]
-    with io.VTXWriter(comm, out / "mesh.bp", msh, engine="BPFile") as vtx:
-        vtx.write(0.0)
-    files.append("mesh.bp")
-    if args.degree <= 2:
-        with io.XDMFFile(comm, out / "mesh.xdmf", "w") as xdmf:
-            xdmf.write_mesh(msh)
-            tags.name = "facet_tags"
-            xdmf.write_meshtags(tags, msh.geometry)
-        files += ["mesh.xdmf", "mesh.h5"]
-    elif comm.rank == 0:  # XDMF cannot hold degree >= 3: drop stale files of earlier runs
-        for name in ("mesh.xdmf", "mesh.h5"):
-            (out / name).unlink(missing_ok=True)
+    files = _write_mesh_files(comm, out, msh, tags, args.degree)
     timings["write"] = time.perf_counter() - t
 
     if plot:
