@@ -17,6 +17,7 @@ import ufl
 from dolfinx import fem, la
 from dolfinx import mesh as dmesh
 
+from . import _curved_tet
 from . import _tetrahedron as tet
 from .boundaries import Boundary
 from .classify import interior_angles, positively_cut
@@ -107,10 +108,6 @@ class MovingDomain:
     ):
         if map not in MAPS:
             raise ValueError(f"unknown map {map!r}: choose one of {MAPS}")
-        if background.topology.dim == 3 and int(degree) != 1:
-            raise ValueError(
-                "curved tetrahedra (degree > 1) are not available yet: use degree=1 for surfaces"
-            )
         self.universal = UniversalMesh(background, **options)
         self.refinement_rounds = 0
         """Local refinements made by :meth:`from_motion` (0 otherwise)."""
@@ -210,7 +207,7 @@ class MovingDomain:
             raise ValueError(
                 "from_motion sizes graded triangle backgrounds for curves; for surfaces build "
                 "a tetrahedral background (e.g. du.a15_mesh) covering the motion and use "
-                "MovingDomain(background, degree=1)"
+                "MovingDomain(background, degree=q)"
             )
         box_arr, field, _, _ = size_from_geometry(
             comm,
@@ -275,6 +272,8 @@ class MovingDomain:
         near[sm.near_cells] = True
         redo = np.flatnonzero(near | self._dirty | (sm.kept != self._kept))
         cells = c2v[redo]
+        kept = sm.kept[redo]
+        cut = np.flatnonzero(kept & positively_cut(sm.sign, cells))
         if self.tdim == 2:
             nodes = collective_call(
                 self.comm,
@@ -288,19 +287,36 @@ class MovingDomain:
                 self._kind,
                 boundary.closest_point,
             )
-        else:  # straight tetrahedra: the vertex images are the nodes
-            nodes = sm.y[cells]
-        kept = sm.kept[redo]
-        cut = np.flatnonzero(kept & positively_cut(sm.sign, cells))
-        ratio = jacobian_ratio(nodes[cut], self.degree) if self.degree > 1 else np.ones(0)
+            curved = cut
+        elif self.degree == 1:  # straight tetrahedra: the vertex images are the nodes
+            nodes, curved = sm.y[cells], cut[:0]
+        else:
+            face, edges = self._gamma_entities(sm, redo, cut)
+            nodes = collective_call(
+                self.comm,
+                "the curved map",
+                _curved_tet.map_nodes,
+                cells,
+                sm.y,
+                sm.x,
+                face,
+                edges,
+                self.degree,
+                self._kind,
+                boundary.closest_point,
+            )
+            curved = np.flatnonzero(kept & edges.any(axis=1))
+        ratio = jacobian_ratio(nodes[curved], self.degree) if self.degree > 1 else np.ones(0)
         bad = ratio <= 0
         raise_collective(
             self.comm,
             [
                 Problem(
-                    f"step {len(self.steps)}: " + "{count} curved triangles would be inverted "
-                    "near {where}: refine the background there",
-                    nodes[cut[bad]].mean(axis=1),
+                    f"step {len(self.steps)}: "
+                    + "{count} curved "
+                    + ("triangles" if self.tdim == 2 else "tetrahedra")
+                    + " would be inverted near {where}: refine the background there",
+                    nodes[curved[bad]].mean(axis=1),
                     int(bad.sum()),
                 )
             ]
@@ -337,6 +353,20 @@ class MovingDomain:
         )
         self.steps.append(report)
         return report
+
+    def _gamma_entities(
+        self, sm, redo: npt.NDArray[np.intp], cut: npt.NDArray[np.intp]
+    ) -> tuple[npt.NDArray[np.int8], npt.NDArray[np.bool_]]:
+        """Positive face and edges of Gamma_h of the cells ``redo`` of a tetrahedral
+        background (see :func:`~dolfinx_universal._curved_tet.gamma_entities`): the outside
+        neighbour of a positive face gets the same face and edges as the kept cell, so the
+        nodes they share agree. ``cut``: the positively cut kept cells among ``redo``.
+        Collective."""
+        k = np.argmin(sm.sign[self._c2v[redo[cut]]], axis=1)
+        faces = self._c2f[redo[cut], k]
+        faces = np.unique(faces[faces < self.mesh.topology.index_map(2).size_local])
+        face, edges = _curved_tet.gamma_entities(self.mesh, sm.on_positive_edge, faces)
+        return face[redo], edges[redo]
 
     def _sync_ghost_nodes(self, rows: npt.NDArray[np.int32], x: npt.NDArray[np.float64]) -> None:
         """Copy the owners' values of the rewritten nodes to their ghosts (collective).
