@@ -193,16 +193,38 @@ def lattice_derivatives(degree: int) -> Float:
     return readonly(np.ascontiguousarray(lagrange(degree).tabulate(1, pts)[1:, :, :, 0]))
 
 
+_CHUNK = 512
+"""Cells per block of :func:`determinant` (its nine ``(cells, p)`` factors stay in cache)."""
+
+
 def determinant(nodes: Float, dphi: Float) -> Float:
-    """``det J``, ``(m, p)``, from nodes ``(m, ndofs, 3)`` and derivatives ``(3, p, ndofs)``."""
+    """``det J``, ``(m, p)``, from nodes ``(m, ndofs, 3)`` and derivatives ``(3, p, ndofs)``.
+
+    Blocks of :data:`_CHUNK` cells: one matrix product gives the Jacobian entries at the
+    ``p`` points, the cofactor expansion runs in place on contiguous rows.
+    """
+    m, n, _ = nodes.shape
     p = dphi.shape[1]
-    g = nodes.transpose(0, 2, 1) @ np.hstack([dphi[0].T, dphi[1].T, dphi[2].T])  # (m, 3, 3p)
-    j = [[g[:, i, k * p : (k + 1) * p] for k in range(3)] for i in range(3)]
-    return (
-        j[0][0] * (j[1][1] * j[2][2] - j[1][2] * j[2][1])
-        - j[0][1] * (j[1][0] * j[2][2] - j[1][2] * j[2][0])
-        + j[0][2] * (j[1][0] * j[2][1] - j[1][1] * j[2][0])
-    )
+    d = np.ascontiguousarray(dphi.transpose(2, 0, 1).reshape(n, 3 * p))  # (ndofs, (k, p))
+    out = np.empty((m, p))
+    for s in range(0, m, _CHUNK):
+        block = nodes[s : s + _CHUNK]
+        c = len(block)
+        g = (block.transpose(2, 0, 1).reshape(3 * c, n) @ d).reshape(3, c, 3, p)
+        j = np.ascontiguousarray(g.transpose(0, 2, 1, 3))  # j[i, k]: d x_i / d X_k, (c, p)
+        a = j[1, 1] * j[2, 2]
+        a -= j[1, 2] * j[2, 1]
+        a *= j[0, 0]
+        b = j[1, 0] * j[2, 2]
+        b -= j[1, 2] * j[2, 0]
+        b *= j[0, 1]
+        a -= b
+        b = j[1, 0] * j[2, 1]
+        b -= j[1, 1] * j[2, 0]
+        b *= j[0, 2]
+        a += b
+        out[s : s + c] = a
+    return out
 
 
 def affine_determinant(nodes: Float) -> Float:

@@ -201,6 +201,12 @@ def _program(degree: int, d: int, mask: int) -> tuple[Float, npt.NDArray[np.intp
     return pts, direct, weights
 
 
+def _contract(w: Float, a: Float) -> Float:
+    """``einsum("pk,ckd->cpd", w, a)`` as one matrix product (``(p, c, d)`` view)."""
+    c, k, d = a.shape
+    return (w @ a.transpose(1, 0, 2).reshape(k, c * d)).reshape(-1, c, d).transpose(1, 0, 2)
+
+
 def map_nodes(
     cells: Int,
     y: Float,
@@ -240,15 +246,13 @@ def map_nodes(
     lam = reference_nodes(degree)
     yc = y[cells]  # (m, 4, 3)
     sc = (x_background if kind == "G" else y)[cells]
-    # einsum sums in vertex order: a straight node gets the same value from all its cells
-    nodes = np.einsum("pi,cid->cpd", lam, yc)
+    nodes = np.ascontiguousarray(_contract(lam, yc))  # affine images
     mask = (edges.astype(np.int64) << np.arange(6)).sum(axis=1)
     key = (face.astype(np.int64) + 1) * 64 + mask
     groups = [(k, np.flatnonzero(key == k)) for k in np.unique(key)]
     programs = [_program(degree, int(k) // 64 - 1, int(k) % 64) for k, _ in groups]
     queries = [
-        np.einsum("rk,ckd->crd", prog[0], sc[rows])
-        for prog, (_, rows) in zip(programs, groups, strict=True)
+        _contract(prog[0], sc[rows]) for prog, (_, rows) in zip(programs, groups, strict=True)
     ]
     flat = np.concatenate([q.reshape(-1, 3) for q in queries]) if queries else np.zeros((0, 3))
     proj = np.asarray(closest_point(flat), dtype=np.float64) if len(flat) else flat
@@ -258,8 +262,8 @@ def map_nodes(
         start += q.size // 3
         if not len(points):
             continue
-        delta = pi - np.einsum("rk,ckd->crd", points, yc[rows])
-        blend = nodes[rows] + np.einsum("pr,crd->cpd", weights, delta)
+        delta = pi - _contract(points, yc[rows])
+        blend = nodes[rows] + _contract(weights, delta)
         on = direct >= 0
         blend[:, on] = pi[:, direct[on]]
         nodes[rows] = blend
