@@ -153,7 +153,7 @@ class MovingLinearProblem(LinearProblem):
 
 
 VelocityData = npt.ArrayLike | Callable[[npt.NDArray[np.float64]], npt.NDArray[np.float64]]
-"""A velocity: a constant vector ``(2,)``, or ``x (3, n) -> values (2, n)``."""
+"""A velocity: a constant vector ``(gdim,)``, or ``x (3, n) -> values (gdim, n)``."""
 
 DIRECT = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"}
 """MUMPS LU: the default solver of :class:`MovingStokes`."""
@@ -162,32 +162,35 @@ DIRECT = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "
 class MovingStokes:
     """Quasi-static Stokes flow around rigid bodies moving in a fixed container.
 
-    Taylor–Hood :math:`P_2/P_1` on the degree-q mesh of ``md``, on the whole background
-    with the indicator :math:`\\chi` = ``md.active``:
+    Taylor–Hood :math:`P_2/P_1` on the degree-q mesh of ``md`` (triangles or tetrahedra),
+    on the whole background with the indicator :math:`\\chi` = ``md.active``:
 
     .. math:: a((u, p), (v, q)) = \\int \\chi \\bigl(2\\mu\\, \\varepsilon(u) :
        \\varepsilon(v) - p \\operatorname{div} v - q \\operatorname{div} u\\bigr)\\, dx = 0.
 
-    The container walls are the background's exterior facets (never moved, always in the
-    fluid), with the velocity ``wall_velocity``; on the immersed boundary Gamma_h the
-    bodies' velocity is given at each :meth:`solve`; the dofs of no fluid cell are zero;
-    the pressure is pinned to zero at ``pressure_point``, a background vertex that stays in
-    the fluid (the forces do not depend on this constant). The spaces, the forms (also
-    those of the forces), the matrix and the solver are built once; each :meth:`solve`
-    locates the dofs on Gamma_h of the current step, reassembles and solves.
+    The container walls, with the velocity ``wall_velocity``, are the background's exterior
+    facets (never moved, always in the fluid) or, where the domain of the step is a
+    :class:`~dolfinx_universal.boundaries.Domain` with a container, the part of Gamma_h
+    nearer to the container than to every body. On the rest of Gamma_h (the bodies) the
+    bodies' velocity is given at each :meth:`solve`; the dofs of no fluid cell are zero; the
+    pressure is pinned to zero at ``pressure_point``, a background vertex that stays in the
+    fluid (the forces do not depend on this constant). The spaces, the forms (also those of
+    the forces), the matrix and the solver are built once; each :meth:`solve` locates the
+    dofs on Gamma_h of the current step, reassembles and solves.
 
-    Forces and torques on the bodies (about the origin, positive counter-clockwise) come two
-    ways; ``n`` is the fluid's outward normal, so the bodies' is ``-n``:
+    Forces and torques on the bodies (about the origin; in 2D a scalar, positive
+    counter-clockwise, in 3D a vector) come two ways; ``n`` is the fluid's outward normal,
+    so the bodies' is ``-n``:
 
     * weak residual (reaction), :meth:`force` and :meth:`torque`:
       :math:`F \\cdot w = -a((u_h, p_h), (w, 0))` with ``w`` the :math:`P_2` field equal to
-      the rigid motion (``e_x``, ``e_y``, or ``e_z x x``) at the velocity nodes on Gamma_h
-      and zero at every other node; by Green's formula this is
+      the rigid motion (``e_i``, or ``e_k x x``) at the velocity nodes on the bodies and
+      zero at every other node; by Green's formula this is
       :math:`-\\int_\\Gamma \\sigma n \\cdot w\\, ds`, and it superconverges (the error is a
       product of two energy-norm errors);
     * surface integrals on the curved Gamma_h, :meth:`surface_force` and
       :meth:`surface_torque`: traces of :math:`\\nabla u_h` and :math:`p_h`, one order
-      less.
+      less (the whole of Gamma_h: use them without an immersed container).
 
     Parameters
     ----------
@@ -196,7 +199,7 @@ class MovingStokes:
     mu
         Viscosity.
     pressure_point
-        ``(x, y)`` of the vertex where ``p = 0``.
+        Coordinates ``(gdim,)`` of the vertex where ``p = 0``.
     wall_velocity
         Velocity on the container walls (default 0).
     petsc_options, petsc_options_prefix
@@ -210,16 +213,19 @@ class MovingStokes:
         mu: float,
         pressure_point: Sequence[float],
         *,
-        wall_velocity: VelocityData = (0.0, 0.0),
+        wall_velocity: VelocityData | None = None,
         petsc_options: dict | None = None,
         petsc_options_prefix: str = "moving_stokes_",
         symmetric: bool = False,
     ):
         self.md, self.mu = md, mu
         msh = self.mesh = md.mesh
-        msh.topology.create_connectivity(1, 2)
-        P2v = basix.ufl.element("Lagrange", "triangle", 2, shape=(2,))
-        P1 = basix.ufl.element("Lagrange", "triangle", 1)
+        d = self.gdim = msh.geometry.dim
+        fdim = msh.topology.dim - 1
+        msh.topology.create_connectivity(fdim, fdim + 1)
+        cell = msh.basix_cell()
+        P2v = basix.ufl.element("Lagrange", cell, 2, shape=(d,))
+        P1 = basix.ufl.element("Lagrange", cell, 1)
         W = self.W = fem.functionspace(msh, basix.ufl.mixed_element([P2v, P1]))
         self.V, _ = W.sub(0).collapse()
         self.Q, _ = W.sub(1).collapse()
@@ -231,7 +237,7 @@ class MovingStokes:
             * (2 * mu * ufl.inner(self.eps(u), self.eps(v)) - p * ufl.div(v) - q * ufl.div(u))
             * ufl.dx
         )
-        zero = fem.Constant(msh, np.zeros(2, dtype=PETSc.ScalarType))
+        zero = fem.Constant(msh, np.zeros(d, dtype=PETSc.ScalarType))
         L = chi * ufl.inner(zero, v) * ufl.dx
         self.wh = fem.Function(W)
         """The solution ``(u_h, p_h)`` of the last :meth:`solve`."""
@@ -247,24 +253,28 @@ class MovingStokes:
 
         # The walls: the background's exterior facets.
         walls = dmesh.exterior_facet_indices(msh.topology)
-        u_wall = fem.Function(V)
-        self._set_velocity(u_wall, wall_velocity)
-        wall_dofs = fem.locate_dofs_topological((W.sub(0), V), 1, walls)
-        self.bc_wall = fem.dirichletbc(u_wall, wall_dofs, W.sub(0))
-        px, py = map(float, pressure_point)
+        self.u_wall = fem.Function(V, name="wall_velocity")
+        self._set_velocity(self.u_wall, np.zeros(d) if wall_velocity is None else wall_velocity)
+        wall_dofs = fem.locate_dofs_topological((W.sub(0), V), fdim, walls)
+        self.bc_wall = fem.dirichletbc(self.u_wall, wall_dofs, W.sub(0))
+        point = np.asarray(pressure_point, dtype=np.float64)
+        if point.shape != (d,):
+            raise ValueError(f"pressure_point must have {d} coordinates, got {pressure_point}")
         corner = fem.locate_dofs_geometrical(
-            (W.sub(1), Q), lambda y: np.isclose(y[0], px) & np.isclose(y[1], py)
+            (W.sub(1), Q), lambda y: np.all(np.isclose(y[:d].T, point), axis=1)
         )
         owned = np.count_nonzero(corner[1] < Q.dofmap.index_map.size_local)
         if md.comm.allreduce(owned) != 1:
             raise ValueError(f"pressure_point {pressure_point} is not one vertex of the mesh")
         self.bc_pressure = fem.dirichletbc(fem.Function(Q), corner, W.sub(1))
         self.u_body = fem.Function(V, name="body_velocity")
-        """The bodies' velocity of the last :meth:`solve` (at every node)."""
-        self._rotation = fem.Function(V)  # e_z x x at every node
+        """The velocity on Gamma_h of the last :meth:`solve` (at every node; the walls'
+        on an immersed container)."""
+        # e_k x x at every node (2D only k = z; 3D k = x, y, z), at every step's geometry
+        self._rotations = [fem.Function(V) for _ in range(1 if d == 2 else 3)]
 
-        # The rigid motions at the nodes on Gamma_h (zero elsewhere), for the reactions.
-        self._tests = [fem.Function(V) for _ in range(3)]  # e_x, e_y, e_z x x
+        # The rigid motions at the nodes on the bodies (zero elsewhere), for the reactions.
+        self._tests = [fem.Function(V) for _ in range(d + len(self._rotations))]
         uh, ph = ufl.split(self.wh)
         self._reaction = [
             fem.form(
@@ -278,15 +288,24 @@ class MovingStokes:
             """``sigma nu`` with ``nu = -n`` the bodies' outward normal."""
             return -ufl.dot(self.sigma(uh, ph)(side), n(side))
 
+        def moment(side: str):
+            """``x x (sigma nu)``: 2D the scalar, 3D the vector."""
+            t, y = traction(side), x(side)
+            if d == 2:
+                return y[0] * t[1] - y[1] * t[0]
+            return ufl.cross(y, t)
+
         self._surface = [
-            fem.form(md.immersed_integral(partial(_component, traction, i))) for i in range(2)
-        ] + [
-            fem.form(
-                md.immersed_integral(lambda s: x[0](s) * traction(s)[1] - x[1](s) * traction(s)[0])
-            )
+            fem.form(md.immersed_integral(partial(_component, traction, i))) for i in range(d)
         ]
+        if d == 2:
+            self._surface.append(fem.form(md.immersed_integral(moment)))
+        else:
+            self._surface += [
+                fem.form(md.immersed_integral(partial(_component, moment, i))) for i in range(3)
+            ]
         self.body_dofs: list[npt.NDArray[np.int32]] = [np.empty(0, np.int32)] * 2
-        """``[dofs of W, dofs of V]`` of the velocity on Gamma_h at the last solve."""
+        """``[dofs of W, dofs of V]`` of the velocity on the bodies at the last solve."""
 
     def eps(self, w):
         """The strain rate ``sym(grad w)``."""
@@ -294,45 +313,81 @@ class MovingStokes:
 
     def sigma(self, w, r):
         """The Cauchy stress ``-r I + 2 mu eps(w)``."""
-        return -r * ufl.Identity(2) + 2 * self.mu * self.eps(w)
+        return -r * ufl.Identity(self.gdim) + 2 * self.mu * self.eps(w)
 
-    @staticmethod
-    def _set_velocity(f: fem.Function, value: VelocityData) -> None:
+    def _set_velocity(self, f: fem.Function, value: VelocityData) -> None:
         if callable(value):
             f.interpolate(value)
         else:
-            f.x.array.reshape(-1, 2)[:] = np.asarray(value, dtype=np.float64)
+            f.x.array.reshape(-1, self.gdim)[:] = np.asarray(value, dtype=np.float64)
+
+    def _on_bodies(self, blocks: npt.NDArray[np.int32]) -> npt.NDArray[np.bool_]:
+        """Which velocity nodes (blocks of V) on Gamma_h belong to a body: all, unless the
+        current domain has a container, whose nodes are those nearer to it than to every
+        body."""
+        boundary = self.md.boundary
+        container = getattr(boundary, "container", None)
+        if container is None or len(blocks) == 0:
+            return np.ones(len(blocks), dtype=bool)
+        x = self.V.tabulate_dof_coordinates()[blocks, : self.gdim]
+        to_container = np.abs(container.signed_distance(x))
+        bodies = getattr(boundary, "bodies", ())
+        if not bodies:
+            return np.zeros(len(blocks), dtype=bool)
+        to_body = np.min([np.abs(b.signed_distance(x)) for b in bodies], axis=0)
+        return to_body < to_container
 
     def boundary_conditions(
-        self, boundary_velocity: VelocityData = (0.0, 0.0), angular_velocity: float = 0.0
+        self,
+        boundary_velocity: VelocityData | None = None,
+        angular_velocity: npt.ArrayLike = 0.0,
     ) -> list[fem.DirichletBC]:
         """The conditions of the current step, after the inactive dofs: the walls, the
-        bodies' velocity ``boundary_velocity + angular_velocity e_z x x`` on Gamma_h, the
-        pressure pin. Sets the rigid test fields of :meth:`force` and :meth:`torque`."""
-        W, V = self.W, self.V
+        bodies' velocity ``boundary_velocity + angular_velocity x x`` on their part of
+        Gamma_h (``angular_velocity``: a scalar about ``e_z`` in 2D, a vector in 3D), the
+        wall velocity on an immersed container, the pressure pin. Sets the rigid test
+        fields of :meth:`force` and :meth:`torque`."""
+        W, V, d = self.W, self.V, self.gdim
         on_gamma = self.md.immersed_dofs((W.sub(0), V))
         assert isinstance(on_gamma, list)  # a (sub-space, collapsed) pair gives two arrays
-        self.body_dofs = on_gamma
-        rot = self._rotation
-        rot.interpolate(lambda y: np.vstack([-y[1], y[0]]))
-        self._set_velocity(self.u_body, boundary_velocity)
-        if angular_velocity:
-            self.u_body.x.array[:] += angular_velocity * rot.x.array
+        bs = V.dofmap.index_map_bs
+        body = self._on_bodies(on_gamma[1] // bs)
+        self.body_dofs = [on_gamma[0][body], on_gamma[1][body]]
+        omega = np.atleast_1d(np.asarray(angular_velocity, dtype=np.float64))
+        if omega.shape == (1,) and omega[0] == 0:  # the default: no rotation
+            omega = np.zeros(len(self._rotations))
+        if len(omega) != len(self._rotations):
+            raise ValueError(
+                f"angular_velocity: {len(self._rotations)} component(s) in {d}D, got {omega}"
+            )
+        for k, rot in enumerate(self._rotations):  # the nodes have moved
+            rot.interpolate(partial(_rotation, d, k))
+        self._set_velocity(
+            self.u_body, np.zeros(d) if boundary_velocity is None else boundary_velocity
+        )
+        for w, rot in zip(omega, self._rotations, strict=True):
+            if w:
+                self.u_body.x.array[:] += w * rot.x.array
+        wall = on_gamma[1][~body]
+        self.u_body.x.array[wall] = self.u_wall.x.array[wall]
+        dofs = self.body_dofs[1]
         for i, w in enumerate(self._tests):
             w.x.array[:] = 0.0
-            if i < 2:  # unrolled: component i at the dofs = i (mod 2)
-                w.x.array[on_gamma[1][on_gamma[1] % 2 == i]] = 1.0
+            if i < d:  # unrolled: component i at the dofs = i (mod d)
+                w.x.array[dofs[dofs % d == i]] = 1.0
             else:
-                w.x.array[on_gamma[1]] = rot.x.array[on_gamma[1]]
+                w.x.array[dofs] = self._rotations[i - d].x.array[dofs]
         return [self.bc_wall, fem.dirichletbc(self.u_body, on_gamma, W.sub(0)), self.bc_pressure]
 
     def solve(
-        self, boundary_velocity: VelocityData = (0.0, 0.0), angular_velocity: float = 0.0
+        self,
+        boundary_velocity: VelocityData | None = None,
+        angular_velocity: npt.ArrayLike = 0.0,
     ) -> tuple[fem.Function, fem.Function]:
         """Solve on the current domain; return collapsed copies ``(u_h, p_h)`` (collective).
 
-        ``boundary_velocity`` (constant ``(2,)`` or ``x -> (2, n)``) plus
-        ``angular_velocity`` times ``e_z x x`` is the velocity of the bodies on Gamma_h.
+        ``boundary_velocity`` (constant ``(gdim,)`` or ``x -> (gdim, n)``) plus
+        ``angular_velocity x x`` is the velocity of the bodies on Gamma_h.
         The solution stays in :attr:`wh`; use :meth:`assemble` and :meth:`solve_assembled`
         to time the stages.
         """
@@ -341,7 +396,9 @@ class MovingStokes:
         return self.wh.sub(0).collapse(), self.wh.sub(1).collapse()
 
     def assemble(
-        self, boundary_velocity: VelocityData = (0.0, 0.0), angular_velocity: float = 0.0
+        self,
+        boundary_velocity: VelocityData | None = None,
+        angular_velocity: npt.ArrayLike = 0.0,
     ) -> None:
         """Boundary conditions of the current step and assembly into the same matrix."""
         self.problem.assemble(self.boundary_conditions(boundary_velocity, angular_velocity))
@@ -355,17 +412,30 @@ class MovingStokes:
         return np.array([comm.allreduce(fem.assemble_scalar(f)) for f in forms])
 
     def force(self) -> npt.NDArray[np.float64]:
-        """Fluid force on the bodies, ``(2,)``, from the weak residual (collective)."""
-        return self._sum(self._reaction[:2])
+        """Fluid force on the bodies, ``(gdim,)``, from the weak residual (collective)."""
+        return self._sum(self._reaction[: self.gdim])
 
-    def torque(self) -> float:
-        """Fluid torque on the bodies about the origin, from the weak residual (collective)."""
-        return float(self._sum(self._reaction[2:])[0])
+    def torque(self) -> Any:
+        """Fluid torque on the bodies about the origin from the weak residual (collective):
+        a float in 2D, ``(3,)`` in 3D."""
+        t = self._sum(self._reaction[self.gdim :])
+        return float(t[0]) if self.gdim == 2 else t
 
     def surface_force(self) -> npt.NDArray[np.float64]:
-        """Fluid force on the bodies, ``(2,)``: ``-int_Gamma_h sigma n ds`` (collective)."""
-        return self._sum(self._surface[:2])
+        """Fluid force on Gamma_h, ``(gdim,)``: ``-int_Gamma_h sigma n ds`` (collective)."""
+        return self._sum(self._surface[: self.gdim])
 
-    def surface_torque(self) -> float:
-        """Fluid torque about the origin, ``int_Gamma_h x x (sigma nu) ds`` (collective)."""
-        return float(self._sum(self._surface[2:])[0])
+    def surface_torque(self) -> Any:
+        """Fluid torque about the origin, ``int_Gamma_h x x (sigma nu) ds`` (collective):
+        a float in 2D, ``(3,)`` in 3D."""
+        t = self._sum(self._surface[self.gdim :])
+        return float(t[0]) if self.gdim == 2 else t
+
+
+def _rotation(d: int, k: int, y: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """``e_k x x`` at points ``y (3, n)``, ``(d, n)`` (2D: ``k = 0`` is ``e_z``)."""
+    if d == 2:
+        return np.vstack([-y[1], y[0]])
+    e = np.zeros((3, 1))
+    e[k] = 1.0
+    return np.cross(e.T, y.T).T
