@@ -42,6 +42,10 @@ OUTER_BAND = 2.0
 """Half-width (in sizes) of the uniform band of the graded tetrahedral background on the
 side of Gamma outside the domain (its cells are cut or dropped, never relaxed); on the
 domain's side it is ``relaxation_factor + 2``."""
+MAX_CELLS = 5e6
+"""Default largest background (cells) that :func:`mesh_domain` and
+:meth:`~dolfinx_universal.moving.MovingDomain.from_motion` build."""
+
 DEFAULT_MAP = {2: "I", 3: "I~"}
 """The curved map :func:`mesh_domain` uses when given none, by topological dimension.
 
@@ -354,7 +358,7 @@ def mesh_domain(
     min_angle: float = 10.0,
     size_factor: float | None = None,
     max_rounds: int = 8,
-    max_cells: float = 5e6,
+    max_cells: float = MAX_CELLS,
     relax: bool = True,
     tet_background: str = "auto",
 ) -> MeshedDomain:
@@ -419,7 +423,9 @@ def mesh_domain(
         component of Gamma; ``"auto"`` (default): the octree where it has fewer than
         :data:`AUTO_RATIO` times the tetrahedra of the A15 background (a small body in a
         large box: a tenth), else A15 (whose angles after relaxation are a few degrees
-        better).
+        better); where the octree's dihedral angles leave :data:`AUTO_DIHEDRAL`, the A15
+        background of the same smallest size instead (one more round, if within
+        ``max_cells``; if that fails, the octree's mesh is kept).
 
     Returns
     -------
@@ -465,6 +471,7 @@ def mesh_domain(
     timings["sizing"] += time.perf_counter() - t
 
     rounds: list[str] = []
+    fallback = None  # the octree's mesh while "auto" tries A15 for better angles
     while True:
         plan.check_size(max_cells, rounds)
         t = time.perf_counter()
@@ -486,11 +493,31 @@ def mesh_domain(
             t = time.perf_counter()
             curved = curved_mesh(cm, degree, map) if degree > 1 else None
             timings["curved"] += time.perf_counter() - t
-            break
+            quality = quality_report(cm)
+            alt = getattr(plan, "alternative", None)
+            if alt is None or not _below_auto_floor(quality) or alt.estimate() > max_cells:
+                break
+            # tet_background="auto" chose the octree: its BCC band fell below the angles
+            # that A15 keeps (measured: 23 degrees on tori where A15 gives 32); take A15.
+            fallback = (plan, background, cm, curved, quality, len(rounds))
+            rounds.append(
+                f"round {len(rounds) + 1}: dihedral angles in "
+                f"[{quality['theta_min_deg']:.3g}, {quality['theta_max_deg']:.3g}] deg on the "
+                f"{plan.name} (auto keeps it within {AUTO_DIHEDRAL}), then the {alt.name} "
+                f"background of size {alt.size:.3g}"
+            )
+            setattr(plan, "alternative", None)  # noqa: B010 (a _GradedTetPlan)
+            plan = alt
+            continue
         except MeshingError as e:
+            first = str(e).splitlines()[0]
+            if fallback is not None:  # A15 failed where the octree's mesh was valid: keep it
+                plan, background, cm, curved, quality, k = fallback
+                rounds[k] += f" (which failed: {_short(first)}; the octree's mesh kept)"
+                del rounds[k + 1 :]
+                break
             if not e.refinable or len(e.points) == 0:
                 raise
-            first = str(e).splitlines()[0]
             if len(rounds) >= max_rounds:
                 raise MeshingError(
                     f"still failing after {max_rounds} local refinements ("
@@ -504,7 +531,6 @@ def mesh_domain(
             rounds[-1] += note
 
     jac = curved.min_jacobian_ratio if curved is not None else 1.0
-    quality = quality_report(cm)
     hvals = plan.sizes()
     size_used = comm.allreduce(float(hvals.min()), op=MPI.MIN)
     msh = curved.mesh if curved is not None else cm.mesh
@@ -638,6 +664,19 @@ AUTO_RATIO = 0.5
 """``tet_background="auto"`` takes the graded octree when it has fewer than this many times
 the tetrahedra of the uniform A15 background (whose angles are better: A15 where it costs
 at most twice as much)."""
+
+
+AUTO_DIHEDRAL = (30.0, 125.0)
+"""Dihedral angles (degrees) that ``tet_background="auto"`` keeps: where the graded octree
+it chose gives a smaller or larger one (its uniform bands are BCC, which the relaxation
+cannot always bring to these), it conforms the A15 background of the same smallest size
+instead, if that stays within ``max_cells`` (A15 met them on every sphere, ellipsoid and
+torus of ``demos/quality_3d.py``)."""
+
+
+def _below_auto_floor(quality: dict) -> bool:
+    lo, hi = AUTO_DIHEDRAL
+    return bool(quality["theta_min_deg"] < lo or quality["theta_max_deg"] > hi)
 
 
 def _tet_plan(

@@ -379,3 +379,57 @@ def test_plan_refine():
     assert len(plan.sources[1][0]) > 3 * m0  # resampled one size apart
     assert plan.count(comm) > n0  # the octree was rebuilt
     assert np.allclose(np.unique(plan.sizes()), [0.025, 0.1])
+
+
+def _torus_in_large_box() -> tuple[du.Torus, np.ndarray, float]:
+    """The first torus placement of ``demos/quality_3d.py`` at h = R/4, in a box three
+    times its extent (where ``auto`` picks the octree; its BCC band: 29.1 degrees)."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng([2019, 2])
+    rotation = Rotation.random(random_state=rng).as_matrix()
+    period = np.cbrt(4.0) / 4
+    u = rng.uniform(0.0, 1.0, 3)
+    upright = du.Torus(np.zeros(3), 1.0, 0.35, axis=rotation[:, 2])
+    lo, hi = np.asarray(upright.bounding_box())
+    box = np.array([1.5 * (lo - hi) + 0.5 * (lo + hi), 1.5 * (hi - lo) + 0.5 * (lo + hi)])
+    box[1] += period
+    torus = du.Torus(u * period, 1.0, 0.35, axis=rotation[:, 2])
+    from dolfinx_universal.sizing_3d import surface_feature_size
+
+    factor = 4 * float(surface_feature_size(torus, 0.25).feature.min())
+    return torus, box, factor
+
+
+def test_auto_takes_a15_for_angles():
+    """``auto`` conforms the A15 background where the octree it chose gave dihedral angles
+    outside ``AUTO_DIHEDRAL`` (the BCC band: 29.1 degrees, A15: 34.4); ``graded`` keeps the
+    octree; if A15 fails, the octree's mesh is kept."""
+    from dolfinx_universal import domain
+
+    torus, box, factor = _torus_in_large_box()
+    md = du.mesh_domain(comm, torus, 1.0, size_factor=factor, box=box)
+    c = md.certificate
+    assert c.background == "A15 uniform" and c.refinement_rounds == 1
+    assert "graded BCC octree (auto keeps it within (30.0, 125.0))" in c.refinements[0]
+    assert 30.0 <= c.min_angle_deg and c.max_angle_deg <= 125.0
+    graded = du.mesh_domain(comm, torus, 1.0, size_factor=factor, box=box, tet_background="graded")
+    g = graded.certificate
+    assert g.background == "graded BCC octree" and g.refinement_rounds == 0
+    assert g.min_angle_deg < 30.0  # measured 29.1
+
+    original = domain.conform
+
+    def fail_on_a15(*args, local_size, **kwargs):
+        if not local_size:  # the uniform A15 background
+            raise du.MeshingError("A15 failed here", np.zeros((1, 3)), refinable=True)
+        return original(*args, local_size=local_size, **kwargs)
+
+    domain.conform = fail_on_a15  # type: ignore[assignment]
+    try:
+        kept = du.mesh_domain(comm, torus, 1.0, size_factor=factor, box=box)
+    finally:
+        domain.conform = original  # type: ignore[assignment]
+    k = kept.certificate
+    assert k.background == "graded BCC octree" and k.min_angle_deg == g.min_angle_deg
+    assert k.refinement_rounds == 1 and "the octree's mesh kept" in k.refinements[0]
