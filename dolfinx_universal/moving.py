@@ -166,6 +166,12 @@ class MovingDomain:
         positions conformed again (at most ``max_rounds`` times). Later :meth:`update` calls
         check that their boundary stays in the region the background was sized for.
 
+        Surfaces: a uniform A15 background (every dihedral angle 53-79 degrees) of the
+        smallest target size over the positions, on the union of their boxes, halved
+        everywhere where a position fails (at most
+        :data:`~dolfinx_universal.domain.MAX_CELLS` tetrahedra); later updates are not
+        checked against it.
+
         Parameters
         ----------
         comm
@@ -204,10 +210,8 @@ class MovingDomain:
         if not positions:
             raise ValueError("the motion has no positions")
         if getattr(positions[0], "gdim", 2) == 3:
-            raise ValueError(
-                "from_motion sizes graded triangle backgrounds for curves; for surfaces build "
-                "a tetrahedral background (e.g. du.a15_mesh) covering the motion and use "
-                "MovingDomain(background, degree=q)"
+            return cls._from_surface_motion(
+                comm, positions, h, degree, map, box, size_factor, max_rounds, options
             )
         box_arr, field, _, _ = size_from_geometry(
             comm,
@@ -243,6 +247,66 @@ class MovingDomain:
         md.steps.clear()
         md.refinement_rounds = rounds
         md._coverage = (field, box_arr, degree, size_factor)
+        return md
+
+    @classmethod
+    def _from_surface_motion(
+        cls,
+        comm: MPI.Comm,
+        positions: list[Boundary],
+        h: float,
+        degree: int,
+        map: str,
+        box: npt.ArrayLike | None,
+        size_factor: float | None,
+        max_rounds: int,
+        options: dict[str, Any],
+    ) -> MovingDomain:
+        """:meth:`from_motion` for surfaces: the uniform A15 background (acute, as
+        :func:`~dolfinx_universal.domain.mesh_domain` takes for one position) of the
+        smallest target size over the positions, in the union of their boxes; halved
+        everywhere where a position fails a refinable check."""
+        from .background_tet import a15_mesh
+        from .domain import MAX_CELLS, _UniformPlan
+
+        rf = float(options.get("relaxation_factor", 3.0))
+        plans = [_UniformPlan.create(comm, p, h, degree, box, rf, size_factor) for p in positions]
+        size = min(p.size for p in plans)
+        lo = np.min([p.box[0] for p in plans], axis=0)
+        hi = np.max([p.box[1] for p in plans], axis=0)
+        rounds = 0
+        while True:
+            estimate = float(np.prod(hi - lo)) * 11.5 / size**3  # A15: 11.5 tets per h^3
+            if estimate > MAX_CELLS:
+                raise MeshingError(
+                    f"the motion asks for an A15 background of size {size:.3g} on the box "
+                    f"{lo.round(4).tolist()} - {hi.round(4).tolist()}: about {estimate:.3g} "
+                    f"tetrahedra, more than {MAX_CELLS:.3g}"
+                    + (f" (after {rounds} refinements)" if rounds else ""),
+                    np.zeros((0, 3)),
+                    refinable=False,
+                )
+            background = a15_mesh(comm, [lo.tolist(), hi.tolist()], size)
+            md = cls(background, degree, map, **options, on_low_quality="raise")
+            k = 0
+            try:
+                for k in range(len(positions)):
+                    md.update(positions[k])
+                break
+            except MeshingError as e:
+                if not e.refinable or rounds >= max_rounds:
+                    raise MeshingError(
+                        f"position {k} of the motion cannot be meshed"
+                        + (f" after {rounds} refinements" if rounds else "")
+                        + f": {e}",
+                        e.points,
+                        refinable=False,
+                    ) from None
+                size *= 0.5
+                rounds += 1
+        md.universal.on_low_quality = "warn"
+        md.steps.clear()
+        md.refinement_rounds = rounds
         return md
 
     # -- the update -----------------------------------------------------------------------

@@ -99,9 +99,23 @@ def test_curved_update_matches_curved_mesh(degree, kind):
     assert np.abs(x_md - sub[order]).max() < 1e-14  # the same computation
 
 
-def test_errors():
-    with pytest.raises(ValueError, match="for surfaces build"):
-        du.MovingDomain.from_motion(comm, _positions(2), 0.25)
+def test_from_motion_surfaces():
+    """A background for a motion of surfaces: the A15 lattice of the smallest target size
+    over the positions covering all of them; every position conforms on it (degree 2)."""
+    positions = [du.Ellipsoid(C + [0.15 * k, 0.0, 0.0], [0.5, 0.35, 0.3]) for k in range(3)]
+    md = du.MovingDomain.from_motion(comm, positions, 0.5, degree=2, map="I~")
+    assert md.refinement_rounds == 0 and not md.steps
+    for e in positions:
+        report = md.update(e)
+        assert report.min_jacobian_ratio > 0 and report.quality["theta_min_deg"] >= 30.0
+        nodes = md.immersed_nodes()
+        assert len(nodes) == 0 or np.abs(e.signed_distance(nodes)).max() < 1e-12
+    lo = np.min(md.mesh.geometry.x, axis=0)
+    hi = np.max(md.mesh.geometry.x, axis=0)
+    lo, hi = comm.allreduce(lo, op=MPI.MIN), comm.allreduce(hi, op=MPI.MAX)
+    assert np.all(lo < C - [0.5, 0.35, 0.3]) and np.all(hi > C + [0.8, 0.35, 0.3])
+    with pytest.raises(du.MeshingError, match="more than"):
+        du.MovingDomain.from_motion(comm, positions, 0.5, size_factor=200.0)
 
 
 @pytest.mark.mpi
