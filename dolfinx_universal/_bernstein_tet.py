@@ -17,6 +17,8 @@ import basix
 import numpy as np
 import numpy.typing as npt
 
+from ._geometry import readonly
+
 __all__ = [
     "CHILDREN",
     "bernstein_basis",
@@ -26,7 +28,6 @@ __all__ = [
     "inverse_collocation",
     "lagrange",
     "lattice_derivatives",
-    "readonly",
     "subdivision",
 ]
 
@@ -49,12 +50,6 @@ CHILDREN = np.array(
 )
 """Red refinement of the reference tetrahedron: vertices of the eight children ``(8, 4, 3)``,
 each of volume 1/48."""
-
-
-def readonly(a: np.ndarray) -> np.ndarray:
-    """``a``, made read-only (cached tables are shared)."""
-    a.setflags(write=False)
-    return a
 
 
 @lru_cache(maxsize=16)

@@ -27,6 +27,18 @@ Bool = npt.NDArray[np.bool_]
 """Flag arrays."""
 
 
+def readonly(a: npt.NDArray) -> npt.NDArray:
+    """``a`` as a contiguous read-only array (tables and samples that callers share)."""
+    a = np.ascontiguousarray(a)
+    a.setflags(write=False)
+    return a
+
+
+def rot90(v: Float) -> Float:
+    """Vectors ``(n, 2)`` rotated by +90 degrees (the tangent of an outward normal)."""
+    return np.column_stack([-v[:, 1], v[:, 0]])
+
+
 def _corners(x: Float, cells: Int) -> Float:
     """Planar vertex coordinates of each triangle, shape ``(m, 3, 2)``."""
     return x[cells][:, :, :2]

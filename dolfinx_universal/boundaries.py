@@ -15,6 +15,8 @@ from scipy import ndimage
 from scipy.interpolate import CubicSpline
 from scipy.spatial import cKDTree
 
+from ._geometry import rot90
+
 __all__ = [
     "Boundary",
     "Circle",
@@ -181,10 +183,6 @@ def _rotation_matrix(rotation: object, name: str = "rotation") -> Float:
 def _rotate(v: Float, c: float, s: float) -> Float:
     """Rows of ``v (n, 2)`` rotated by the angle of cosine ``c`` and sine ``s``."""
     return np.column_stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1]])
-
-
-def _rot90(v: Float) -> Float:
-    return np.column_stack([-v[:, 1], v[:, 0]])
 
 
 def _unit(v: Float) -> Float:
@@ -511,7 +509,7 @@ class Boundary(abc.ABC):
 
     def tangent(self, y: npt.ArrayLike) -> Float:
         """Unit tangents ``(-n_y, n_x)`` at ``pi(y)``, ``(n, 2)``: Omega lies on their left."""
-        return _rot90(self.normal(y))
+        return rot90(self.normal(y))
 
     def tangent_basis(self, y: npt.ArrayLike) -> Float:
         """Orthonormal bases of the tangent spaces of Gamma at ``pi(y)``.
@@ -866,7 +864,7 @@ class ImplicitCurve(Boundary):
             g = self._g(ya)
             gn = _norm(g)
             n = g / gn[:, None]
-            tau = _rot90(n)
+            tau = rot90(n)
             Ht = np.einsum("kij,kj->ki", self._H(ya), tau)
             r = ya - x[act]
             lam = -(r * n).sum(axis=1) / gn
@@ -918,7 +916,7 @@ class ImplicitCurve(Boundary):
     def min_radius_of_curvature(self) -> float:
         y = self._samples[0]
         g = self._g(y)
-        tau = _rot90(g) / _norm(g)[:, None]
+        tau = rot90(g) / _norm(g)[:, None]
         kappa = np.abs(np.einsum("ki,kij,kj->k", tau, self._H(y), tau)) / _norm(g)
         return float(1 / kappa.max()) if kappa.max() > 0 else np.inf
 
@@ -1279,7 +1277,7 @@ class PolarCurve(ParametricCurve):
 
     def _frame(self, t: Float) -> tuple[Float, Float]:
         u = np.column_stack([np.cos(t), np.sin(t)])
-        return u, _rot90(u)
+        return u, rot90(u)
 
     def _c012(self, t: Float) -> tuple[Float, Float, Float]:
         u, v = self._frame(t)  # once for the three (the formulas of point, derivative, ...)

@@ -37,7 +37,6 @@ __all__ = [
 ]
 
 PROG = "dolfinx-universal"
-MAPS = ("I", "I~", "G", "G~")
 
 Float = npt.NDArray[np.float64]
 
@@ -482,6 +481,8 @@ def _version() -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``dolfinx-universal`` / ``python -m dolfinx_universal``."""
+    from .curved import MAPS
+
     p = _Parser(
         prog=PROG,
         description=(

@@ -41,6 +41,7 @@ import ufl
 from dolfinx import fem, la
 from dolfinx.fem import petsc as fem_petsc
 
+from ._geometry import rot90
 from .conform import IMMERSED
 from .curved import CurvedMesh, boundary_dof_data
 
@@ -57,11 +58,6 @@ DEFAULT_PETSC_OPTIONS = {
 """Direct solve with MUMPS."""
 
 _counter = itertools.count()
-
-
-def _rot90(v: Float) -> Float:
-    """Rotate vectors ``(n, 2)`` by +90 degrees (the tangent of an outward normal)."""
-    return np.column_stack([-v[:, 1], v[:, 0]])
 
 
 @dataclass
@@ -285,7 +281,7 @@ class SlipConstraint:
         Vc = self._Vc
         facets = self.curved.facet_tags.find(self.tag)  # owned facets: each counted once
         blocks, normals = facet_frames(Vc, facets)
-        c = normals if self.component == "normal" else _rot90(normals.reshape(-1, 2))
+        c = normals if self.component == "normal" else rot90(normals.reshape(-1, 2))
         c = c.reshape(-1, 2)
         # Per node: sum of c c^T (4), sum of c (2), count (1), gathered on the owner.
         data = np.column_stack(
@@ -309,9 +305,9 @@ class SlipConstraint:
         g = self._values(x)
         cvec = S / np.linalg.norm(S, axis=1, keepdims=True)
         if self.component == "normal":
-            normal, tangent = cvec, _rot90(cvec)
+            normal, tangent = cvec, rot90(cvec)
         else:
-            normal, tangent = -_rot90(cvec), cvec
+            normal, tangent = -rot90(cvec), cvec
         # Both conditions c_i . u = g hold iff (sum c_i c_i^T) u = g sum c_i (M regular).
         u0 = np.zeros((len(nodes), 2))
         if double.any():

@@ -14,6 +14,7 @@ import numpy as np
 import numpy.typing as npt
 from dolfinx import mesh as dmesh
 
+from .background import GRADATION
 from .boundaries import Boundary, Domain
 from .conform import ConformingMesh, conform
 from .curved import MAPS, CurvedMesh, curved_mesh
@@ -34,9 +35,6 @@ __all__ = [
 ]
 
 Float = npt.NDArray[np.float64]
-
-GRADATION = 0.2
-"""Growth of the background's size away from the boundary (size change per unit length)."""
 
 OUTER_BAND = 2.0
 """Half-width (in sizes) of the uniform band of the graded tetrahedral background on the

@@ -11,6 +11,7 @@ import numpy as np
 import numpy.typing as npt
 
 from . import _bernstein_tet as _tet
+from ._geometry import readonly
 
 __all__ = [
     "bernstein_basis",
@@ -50,7 +51,7 @@ def bernstein_indices(order: int) -> Int:
     The indices, ``(nb, 3)`` with ``nb = (order + 1)(order + 2) / 2`` (read-only).
     """
     rows = [(order - i - j, i, j) for i in range(order + 1) for j in range(order + 1 - i)]
-    return _tet.readonly(np.array(rows, dtype=np.int64))
+    return readonly(np.array(rows, dtype=np.int64))
 
 
 def _control_points(order: int) -> Float:
@@ -85,7 +86,7 @@ def _inverse_collocation(order: int) -> Float:
 
     Its condition number is 2.6, 13, 80, 515 for ``order`` 2, 4, 6, 8 (geometry degree 2-5).
     """
-    return _tet.readonly(np.linalg.inv(bernstein_basis(order, _control_points(order))))
+    return readonly(np.linalg.inv(bernstein_basis(order, _control_points(order))))
 
 
 def _casteljau_step(order: int, w: Float) -> Float:
@@ -126,7 +127,7 @@ def _subdivision(order: int) -> Float:
             coefficients[row] = op[0]
         values = bernstein_basis(order, _control_points(order)) @ coefficients
         blocks += [values.T, coefficients.T]
-    return _tet.readonly(np.hstack(blocks))
+    return readonly(np.hstack(blocks))
 
 
 @lru_cache(maxsize=16)
@@ -134,7 +135,7 @@ def _lattice_derivatives(degree: int) -> Float:
     """Reference derivatives of the degree-q Lagrange basis at the degree-2(q-1) control
     points, ``(2, nb, ndofs)``."""
     pts = _control_points(2 * (degree - 1))
-    return _tet.readonly(np.ascontiguousarray(_lagrange(degree).tabulate(1, pts)[1:, :, :, 0]))
+    return readonly(np.ascontiguousarray(_lagrange(degree).tabulate(1, pts)[1:, :, :, 0]))
 
 
 def _determinant(nodes: Float, dphi: Float) -> Float:

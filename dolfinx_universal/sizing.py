@@ -11,6 +11,7 @@ import numpy.typing as npt
 from scipy import ndimage
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
+from ._geometry import readonly
 from .boundaries import Boundary, _as_points, _cross, _norm, _positive
 
 __all__ = [
@@ -55,12 +56,6 @@ def _points(x: npt.ArrayLike, name: str) -> Float:
     """``x`` as a finite float64 array ``(n, 2)``; a flat empty array is ``(0, 2)``."""
     a = np.asarray(x, dtype=np.float64)
     return _as_points(a.reshape(0, 2) if a.ndim == 1 and a.size == 0 else a, name)
-
-
-def _readonly(a: npt.NDArray[Any]) -> npt.NDArray[Any]:
-    a = np.ascontiguousarray(a)
-    a.setflags(write=False)
-    return a
 
 
 def _at(p: Float) -> str:
@@ -166,12 +161,12 @@ def curve_samples(boundary: Boundary, spacing: float) -> CurveSamples:
     far = hi + max(float(_norm(hi - lo)), 1.0)
     far_inside = bool(boundary.sign(far[None, :])[0] < 0)
     return CurveSamples(
-        points=_readonly(pts),
-        normals=_readonly(normals),
-        labels=_readonly(labels),
-        offsets=_readonly(offsets),
+        points=readonly(pts),
+        normals=readonly(normals),
+        labels=readonly(labels),
+        offsets=readonly(offsets),
         num_curves=ncurves,
-        encloses_domain=_readonly(encloses),
+        encloses_domain=readonly(encloses),
         expected_pieces=int(encloses.sum()) + int(far_inside),
         spacing=float(_norm(pts[nxt] - pts).max()),
     )
@@ -624,7 +619,7 @@ class SizeField:
             raise ValueError(f"sizes must have shape ({len(p)},), got {s.shape}")
         if not (np.isfinite(s).all() and (s > 0).all()):
             raise ValueError("sizes must be positive and finite")
-        return _Sources(_readonly(p), _readonly(s), _positive(gradation, "gradation"))
+        return _Sources(readonly(p), readonly(s), _positive(gradation, "gradation"))
 
     @classmethod
     def _of(cls, groups: Sequence[_Sources], h_max: float, ratio: float) -> SizeField:

@@ -31,12 +31,12 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 from scipy.spatial import cKDTree
 
+from ._geometry import readonly
 from .boundaries import Boundary, Domain, RigidMotion, _positive
 
 __all__ = [
@@ -59,12 +59,6 @@ _FIRST_NEIGHBOURS = 8  # neighbours of the first query, to skip those near p
 _RTOL = 1e-12  # a ball is empty when q is within _RTOL (r + r_max) of its sphere
 _WORKERS = -1  # threads of the k-d tree queries
 _CHUNK = 2048  # centres per closest-point call
-
-
-def _readonly(a: npt.NDArray[Any]) -> npt.NDArray[Any]:
-    a = np.ascontiguousarray(a)
-    a.setflags(write=False)
-    return a
 
 
 @dataclass(frozen=True, eq=False)
@@ -332,12 +326,12 @@ def surface_feature_size(
     oracle = surface_nearest(boundary, samples) if nearest == "surface" else samples
     r_in, r_out = shrinking_ball_radii(points, normals, r_max, oracle)
     return SurfaceFeature(
-        points=_readonly(points),
-        normals=_readonly(normals),
-        labels=_readonly(labels),
-        feature=_readonly(np.minimum(r_in, r_out)),
-        r_inside=_readonly(r_in),
-        r_outside=_readonly(r_out),
+        points=readonly(points),
+        normals=readonly(normals),
+        labels=readonly(labels),
+        feature=readonly(np.minimum(r_in, r_out)),
+        r_inside=readonly(r_in),
+        r_outside=readonly(r_out),
         spacing=h,
         r_max=r_max,
     )
