@@ -301,7 +301,11 @@ def summarise(comm: MPI.Comm, runs: list[dict]) -> dict:
 # - `graded`: `tet_background="graded"` in a box three times the surface's extent, so that
 #   the octree grades: uniform BCC in a band of $5h$ inside $\Gamma$ and $2h$ outside, then
 #   coarser, with the *transition cells* at the level changes (the half pyramids reach 120
-#   degrees before any relaxation, and the relaxation leaves them alone).
+#   degrees before any relaxation, and the relaxation leaves them alone);
+# - `auto3x`: the default `tet_background="auto"` in that large box, where it picks the
+#   octree, and conforms the A15 lattice instead where the octree's dihedral angles leave
+#   $[30°, 125°]$ ({py:data}`dolfinx_universal.domain.AUTO_DIHEDRAL`), unless the A15
+#   background would exceed `max_cells`.
 #
 # A placement is a random rotation and a translation of the surface by $u\,a$, with the
 # box fixed by the rotated surface before the translation (one period $a = 4^{1/3} h$ more
@@ -315,7 +319,8 @@ def summarise(comm: MPI.Comm, runs: list[dict]) -> dict:
 # $|\delta V / V| / h^2$ and the time of the whole call.
 
 # +
-DOMAIN_SETUPS = ("auto", "graded")
+DOMAIN_SETUPS = ("auto", "graded", "auto3x")
+BACKGROUND = {"auto": "auto", "graded": "graded", "auto3x": "auto"}  # tet_background
 DOMAIN_PLACEMENTS = {4: 4, 8: 4, 16: 2, 32: 1}  # placements per R / h (full run)
 BOX_FACTOR = 3.0  # the graded set-up's box: BOX_FACTOR times the surface's extent
 BCC_ANGLES = np.array([60.0, 60.0, 60.0, 60.0, 90.0, 90.0])  # a BCC tetrahedron, sorted
@@ -342,7 +347,9 @@ def domain_once(comm: MPI.Comm, name: str, setup: str, n: int, placement) -> dic
     # samples here, so that the smallest target size is exactly h.
     factor = n * float(surface_feature_size(boundary, 0.25).feature.min())
     t0 = time.perf_counter()
-    md = du.mesh_domain(comm, boundary, 1.0, size_factor=factor, box=box, tet_background=setup)
+    md = du.mesh_domain(
+        comm, boundary, 1.0, size_factor=factor, box=box, tet_background=BACKGROUND[setup]
+    )
     seconds = comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
     c, cm = md.certificate, md.conforming
     nco = cm.mesh.topology.index_map(3).size_local
@@ -618,6 +625,8 @@ def check_domain(rows: list[dict]) -> None:
     for r in rows:
         assert abs(r["h_min"] - r["h_over_R"]) < 1e-9 * r["h_over_R"] or r["refinement_rounds"], r
         assert abs(r["volume_error_over_h2"]) < 1.0, r
+        if r["setup"] != "graded":  # auto keeps the targets (AUTO_DIHEDRAL)
+            assert TARGETS[0] <= r["theta_min_deg"] and r["theta_max_deg"] <= TARGETS[1], r
 
 
 # -

@@ -169,15 +169,24 @@ def test_quality_3d_demo(tmp_path):
             assert len(counts) == 180 and sum(counts) == 6 * cells[lattice][n]
     for name in ("meshes.png", "dihedral_histogram.png"):
         assert (tmp_path / "s" / name).stat().st_size > 10_000
-    # Through mesh_domain: 3 shapes x 2 set-ups x 2 sizes, 1 placement each, at the size
-    # asked for; the auto set-up takes A15 in its small box, the graded one grades.
+    # Through mesh_domain: 3 shapes x 3 set-ups x 2 sizes, 1 placement each, at the size
+    # asked for; the auto set-up takes A15 in its small box, the graded one grades, auto in
+    # the large box grades or (one round) takes A15 where the octree leaves [30, 125].
     md = serial["mesh_domain"]
-    assert len(md["table"]) == 12 and len(md["rows"]) == 12
+    assert len(md["table"]) == 18 and len(md["rows"]) == 18
     for r in md["rows"]:
-        assert r["h_min"] == pytest.approx(r["h_over_R"]) and r["refinement_rounds"] == 0, r
-        assert r["background"] == {"auto": "A15 uniform", "graded": "graded BCC octree"}[r["setup"]]
-        assert (r["n_background_half_pyramids"] > 0) == (r["setup"] == "graded"), r
+        assert r["h_min"] == pytest.approx(r["h_over_R"]), r
+        octree = r["background"] == "graded BCC octree"
+        if r["setup"] == "auto3x":  # A15 chosen at once, or after the octree's angles
+            assert r["refinement_rounds"] == (0 if octree else len(r["refinements"])), r
+            assert all("auto keeps it within" in note for note in r["refinements"]), r
+        else:
+            assert r["refinement_rounds"] == 0, r
+            assert octree == (r["setup"] == "graded"), r
+        assert (r["n_background_half_pyramids"] > 0) == octree, r
         assert 20 < r["theta_min_deg"] and r["theta_max_deg"] < 130, r
+        if r["setup"] != "graded":
+            assert 30 <= r["theta_min_deg"] and r["theta_max_deg"] <= 125, r
         assert 0 < abs(r["volume_error_over_h2"]) < 1, r
     # The same meshes on 2 ranks (up to rounding); times differ and are left out.
     parallel = _run("quality_3d.py", 2, tmp_path / "p")
