@@ -72,9 +72,9 @@ def reference_nodes(degree: int) -> Float:
 
 
 def gamma_entities(
-    msh: object, sign_on_gamma: npt.NDArray[np.bool_], immersed: Int
+    msh: object, sign_on_gamma: npt.NDArray[np.bool_], immersed: Int, cells: Int | None = None
 ) -> tuple[npt.NDArray[np.int8], npt.NDArray[np.bool_]]:
-    """Positive faces and edges of Gamma_h of every local cell (owned and ghost). Collective.
+    """Positive faces and edges of Gamma_h of local cells (owned and ghost). Collective.
 
     Parameters
     ----------
@@ -84,6 +84,9 @@ def gamma_entities(
         Vertices on Gamma ``(num_vertices,)``.
     immersed
         Owned faces of Gamma_h (the immersed facet tags) ``(k,)``.
+    cells
+        The local cells to answer for (default: all); each cell with a face of Gamma_h
+        must be among them.
 
     Returns
     -------
@@ -101,6 +104,8 @@ def gamma_entities(
     c2f = topo.connectivity(3, 2).array.reshape(-1, 4)
     c2e = topo.connectivity(3, 1).array.reshape(-1, 6)
     c2v = topo.connectivity(3, 0).array.reshape(-1, 4)
+    if cells is not None:
+        c2f, c2e, c2v = c2f[cells], c2e[cells], c2v[cells]
 
     fv = la.vector(topo.index_map(2), 1)
     fv.array[:] = 0.0
