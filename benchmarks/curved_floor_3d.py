@@ -10,7 +10,8 @@ moved by fractions of ``h`` from step to step; about 1e6 tetrahedra, 8e4 with ``
   tagged ``IMMERSED`` (closed form for the sphere and the torus; the package's
   ``closest_point`` is general). The package also finds the entities of Gamma_h, blends the
   nodes into the cells and proves every curved cell valid (Bernstein bounds of ``det J``):
-  work the floor does not do.
+  work the floor does not do. The meshes' edges and faces are created before the timing
+  (both sides need them: the degree-q geometry has nodes on them).
 * ``MovingDomain.update`` (q = 2, ``I~``) against its floor: the straight map of
   ``conform_floor_3d.ConformFloor3D`` (classification of every vertex, closest points of
   the positive faces' vertices) and the degree-2 nodes of the cells with a vertex on Gamma
@@ -48,6 +49,11 @@ def curved_rows(comm, background, kind: str, repeats: int) -> list[tuple[str, fl
     um = du.UniversalMesh(background)
     h = float(comm.allreduce(float(um.h.max()) if len(um.h) else 0.0, op=MPI.MAX))
     meshes = [um.conform(surfaces(kind, h, step)) for step in range(repeats + 1)]
+    for cm in meshes:  # edges and faces, which both sides need (untimed)
+        cm.mesh.topology.create_entities(1)
+        cm.mesh.topology.create_connectivity(3, 1)
+        cm.mesh.topology.create_connectivity(3, 2)
+        cm.mesh.topology.create_connectivity(2, 3)
     rows = []
     for q in (2, 3):
         ce = fem.coordinate_element(dmesh.CellType.tetrahedron, q, basix.LagrangeVariant.gll_warped)
