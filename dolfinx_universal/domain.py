@@ -16,7 +16,7 @@ from dolfinx import mesh as dmesh
 
 from .background import GRADATION
 from .boundaries import Boundary, Domain
-from .conform import ConformingMesh, conform
+from .conform import IMMERSED, ConformingMesh, conform
 from .curved import MAPS, CurvedMesh, curved_mesh
 from .dimensions import cell_kernels
 from .graded import EDGE_FACTOR, graded_mesh
@@ -168,6 +168,26 @@ class MeshedDomain:
     def background(self) -> dmesh.Mesh:
         """The graded background mesh of the last round."""
         return self.conforming.background
+
+    def component_facets(self) -> list[npt.NDArray[np.int32]]:
+        """The facets tagged ``IMMERSED`` of each component of Gamma (process-local).
+
+        One array per component, in the order of
+        :attr:`~dolfinx_universal.boundaries.Domain.components` (the container first, then
+        the bodies; one array for a single boundary): each facet goes to the component
+        nearest to its midpoint. For boundary conditions or integrals on one surface,
+        e.g. ``dmesh.meshtags(md.mesh, tdim - 1, facets, values)``.
+        """
+        facets = self.facet_tags.find(IMMERSED)
+        boundary = self.conforming.boundary
+        comps = boundary.components if isinstance(boundary, Domain) else [(boundary, False)]
+        if len(comps) == 1:
+            return [facets]
+        fdim = self.mesh.topology.dim - 1
+        mid = dmesh.compute_midpoints(self.mesh, fdim, facets)[:, : self.mesh.geometry.dim]
+        dist = np.array([np.abs(c.signed_distance(mid)) for c, _ in comps]).reshape(-1, len(mid))
+        nearest = np.argmin(dist, axis=0)
+        return [facets[nearest == k] for k in range(len(comps))]
 
 
 def check_components(boundary: Boundary, n: int = 2048) -> None:

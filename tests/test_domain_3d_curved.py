@@ -155,3 +155,28 @@ def test_cli_degree_for_surfaces(mpi_tmp_path, capsys):
     x = _gamma_nodes(msh, tags)
     r = np.abs(np.linalg.norm(x, axis=1) - 1.0) if len(x) else np.zeros(1)
     assert comm.allreduce(float(r.max()), op=MPI.MAX) < 1e-13
+
+
+def test_component_facets():
+    """The immersed faces of a shell split by surface: the container's on the sphere of
+    radius 1, the body's on the sphere of radius 0.5 (curved, degree 2), and together all
+    of them; the areas of the two surfaces to O(h^4)."""
+    outer, inner = du.Sphere([0.0, 0.0, 0.0], 1.0), du.Sphere([0.0, 0.0, 0.0], 0.5)
+    md = du.mesh_domain(MPI.COMM_WORLD, du.Domain(outer, [inner]), 0.3, degree=2)
+    container, body = md.component_facets()
+    assert np.array_equal(
+        np.sort(np.concatenate([container, body])), np.sort(md.facet_tags.find(du.IMMERSED))
+    )
+    tags = dmesh.meshtags(
+        md.mesh,
+        2,
+        np.concatenate([container, body]),
+        np.concatenate([np.full(len(container), 1), np.full(len(body), 2)]).astype(np.int32),
+    )
+    ds = ufl.Measure("ds", domain=md.mesh, subdomain_data=tags)
+    comm = md.mesh.comm
+    areas = [comm.allreduce(fem.assemble_scalar(fem.form(1.0 * ds(k))), op=MPI.SUM) for k in (1, 2)]
+    assert areas[0] == pytest.approx(4 * np.pi, rel=1e-3)
+    assert areas[1] == pytest.approx(np.pi, rel=1e-3)
+    (single,) = du.mesh_domain(MPI.COMM_WORLD, outer, 0.4).component_facets()
+    assert len(single) > 0
