@@ -209,7 +209,8 @@ def _program(degree: int, d: int, mask: int) -> tuple[Float, npt.NDArray[np.intp
 def _contract(w: Float, a: Float) -> Float:
     """``einsum("pk,ckd->cpd", w, a)`` as one matrix product (``(p, c, d)`` view)."""
     c, k, d = a.shape
-    return (w @ a.transpose(1, 0, 2).reshape(k, c * d)).reshape(-1, c, d).transpose(1, 0, 2)
+    out = w @ a.transpose(1, 0, 2).reshape(k, c * d)
+    return out.reshape(len(w), c, d).transpose(1, 0, 2)
 
 
 def map_nodes(
