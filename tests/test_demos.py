@@ -169,11 +169,12 @@ def test_quality_3d_demo(tmp_path):
             assert len(counts) == 180 and sum(counts) == 6 * cells[lattice][n]
     for name in ("meshes.png", "dihedral_histogram.png"):
         assert (tmp_path / "s" / name).stat().st_size > 10_000
-    # Through mesh_domain: 3 shapes x 3 set-ups x 2 sizes, 1 placement each, at the size
-    # asked for; the auto set-up takes A15 in its small box, the graded one grades, auto in
-    # the large box grades or (one round) takes A15 where the octree leaves [30, 125].
+    # Through mesh_domain: 3 shapes x 2 set-ups x 2 sizes and auto in the large box at R/4,
+    # 1 placement each, at the size asked for; the auto set-up takes A15 in its small box,
+    # the graded one grades, auto in the large box grades or (one round) takes A15 where
+    # the octree leaves [30, 125].
     md = serial["mesh_domain"]
-    assert len(md["table"]) == 18 and len(md["rows"]) == 18
+    assert len(md["table"]) == 15 and len(md["rows"]) == 15
     for r in md["rows"]:
         assert r["h_min"] == pytest.approx(r["h_over_R"]), r
         octree = r["background"] == "graded BCC octree"
