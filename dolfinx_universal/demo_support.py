@@ -126,7 +126,7 @@ def point_values(
     msh = functions[0].function_space.mesh
     comm = msh.comm
     points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
-    owned = msh.topology.index_map(2).size_local
+    owned = msh.topology.index_map(msh.topology.dim).size_local  # cells (not facets in 3D)
     cells = np.arange(owned) if cells is None else np.asarray(cells)
     tree = geometry.bb_tree(msh, msh.topology.dim, entities=cells[cells < owned].astype(np.int32))
     colliding = geometry.compute_colliding_cells(
