@@ -223,17 +223,53 @@ class MovingDomain:
             size_factor=size_factor,
         )
         options = {**options, "local_size": True}
+        state = {"field": field}
+
+        def refine(points: npt.NDArray[np.float64]) -> bool:
+            if len(points) == 0:
+                return False
+            f = state["field"]
+            state["field"] = f.refined(points, 0.5 * f(points))
+            return True
+
+        md = cls._conformed_to_motion(
+            positions,
+            lambda: graded_mesh(
+                comm, box_arr, state["field"], max_size=h, root_size=h / EDGE_FACTOR
+            ),
+            refine,
+            degree,
+            map,
+            options,
+            max_rounds,
+        )
+        md._coverage = (state["field"], box_arr, degree, size_factor)
+        return md
+
+    @classmethod
+    def _conformed_to_motion(
+        cls,
+        positions: list[Boundary],
+        background: Callable[[], dmesh.Mesh],
+        refine: Callable[[npt.NDArray[np.float64]], bool],
+        degree: int,
+        map: str,
+        options: dict[str, Any],
+        max_rounds: int,
+    ) -> MovingDomain:
+        """Conform every position on ``background()``; after a refinable failure near some
+        points, ``refine(points)`` (False: it cannot) and build again, at most
+        ``max_rounds`` times (collective)."""
         rounds = 0
         while True:
-            background = graded_mesh(comm, box_arr, field, max_size=h, root_size=h / EDGE_FACTOR)
-            md = cls(background, degree, map, **options, on_low_quality="raise")
+            md = cls(background(), degree, map, **options, on_low_quality="raise")
             k = 0
             try:
                 for k in range(len(positions)):
                     md.update(positions[k])
                 break
             except MeshingError as e:
-                if not e.refinable or len(e.points) == 0 or rounds >= max_rounds:
+                if not e.refinable or rounds >= max_rounds or not refine(e.points):
                     raise MeshingError(
                         f"position {k} of the motion cannot be meshed"
                         + (f" after {rounds} refinements" if rounds else "")
@@ -241,12 +277,10 @@ class MovingDomain:
                         e.points,
                         refinable=False,
                     ) from None
-                field = field.refined(e.points, 0.5 * field(e.points))
                 rounds += 1
         md.universal.on_low_quality = "warn"
         md.steps.clear()
         md.refinement_rounds = rounds
-        md._coverage = (field, box_arr, degree, size_factor)
         return md
 
     @classmethod
@@ -266,48 +300,30 @@ class MovingDomain:
         :func:`~dolfinx_universal.domain.mesh_domain` takes for one position) of the
         smallest target size over the positions, in the union of their boxes; halved
         everywhere where a position fails a refinable check."""
-        from .background_tet import a15_mesh
         from .domain import MAX_CELLS, _UniformPlan
 
         rf = float(options.get("relaxation_factor", 3.0))
         plans = [_UniformPlan.create(comm, p, h, degree, box, rf, size_factor) for p in positions]
-        size = min(p.size for p in plans)
-        lo = np.min([p.box[0] for p in plans], axis=0)
-        hi = np.max([p.box[1] for p in plans], axis=0)
-        rounds = 0
-        while True:
-            estimate = float(np.prod(hi - lo)) * 11.5 / size**3  # A15: 11.5 tets per h^3
-            if estimate > MAX_CELLS:
-                raise MeshingError(
-                    f"the motion asks for an A15 background of size {size:.3g} on the box "
-                    f"{lo.round(4).tolist()} - {hi.round(4).tolist()}: about {estimate:.3g} "
-                    f"tetrahedra, more than {MAX_CELLS:.3g}"
-                    + (f" (after {rounds} refinements)" if rounds else ""),
-                    np.zeros((0, 3)),
-                    refinable=False,
-                )
-            background = a15_mesh(comm, [lo.tolist(), hi.tolist()], size)
-            md = cls(background, degree, map, **options, on_low_quality="raise")
-            k = 0
-            try:
-                for k in range(len(positions)):
-                    md.update(positions[k])
-                break
-            except MeshingError as e:
-                if not e.refinable or rounds >= max_rounds:
-                    raise MeshingError(
-                        f"position {k} of the motion cannot be meshed"
-                        + (f" after {rounds} refinements" if rounds else "")
-                        + f": {e}",
-                        e.points,
-                        refinable=False,
-                    ) from None
-                size *= 0.5
-                rounds += 1
-        md.universal.on_low_quality = "warn"
-        md.steps.clear()
-        md.refinement_rounds = rounds
-        return md
+        union = _UniformPlan(
+            np.array([np.min([p.box[0] for p in plans], axis=0),
+                      np.max([p.box[1] for p in plans], axis=0)]),
+            min(p.size for p in plans),
+            *(np.concatenate([getattr(p, a) for p in plans]) for a in ("points", "feature", "rho")),
+        )  # fmt: skip
+        rounds: list[str] = []
+
+        def background() -> dmesh.Mesh:
+            union.check_size(MAX_CELLS, rounds)
+            return union.background(comm)
+
+        def refine(points: npt.NDArray[np.float64]) -> bool:
+            union.refine(points)  # halved everywhere
+            rounds.append(f"halved to {union.size:.3g}")
+            return True
+
+        return cls._conformed_to_motion(
+            positions, background, refine, degree, map, options, max_rounds
+        )
 
     # -- the update -----------------------------------------------------------------------
 
