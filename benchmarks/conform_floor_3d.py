@@ -141,8 +141,9 @@ class ConformFloor3D:
         self.x, self.c2v, self.n2v, self.nco = um._x, um._c2v, um._n2v, um._nco
         self.depth = um.eta * um.h  # inside vertices shallower than eta h count as on Gamma
 
-    def straight(self, surface) -> tuple[np.ndarray, np.ndarray]:
-        """Mapped vertex coordinates and the kept owned cells."""
+    def snapped(self, surface) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Mapped vertex coordinates, the vertices snapped onto the surface and the
+        inside vertices of each cell."""
         x, c2v = self.x, self.c2v
         f = floor_of(surface)
         inside = f.inside(x, self.depth)
@@ -152,8 +153,12 @@ class ConformFloor3D:
         on &= ~inside
         y = x.copy()
         y[on] = f.project(x[on])
-        kept = np.flatnonzero(n_in[: self.nco] > 0).astype(np.int32)
-        return y, kept
+        return y, on, n_in
+
+    def straight(self, surface) -> tuple[np.ndarray, np.ndarray]:
+        """Mapped vertex coordinates and the kept owned cells."""
+        y, _, n_in = self.snapped(surface)
+        return y, np.flatnonzero(n_in[: self.nco] > 0).astype(np.int32)
 
     def conform(self, surface) -> dmesh.Mesh:
         y, kept = self.straight(surface)

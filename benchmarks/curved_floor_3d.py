@@ -88,15 +88,8 @@ class UpdateFloor3D(ConformFloor3D):
         self.edges = np.array(basix.topology(basix.CellType.tetrahedron)[1])  # (6, 2)
 
     def update(self, surface) -> None:
-        x, c2v = self.x, self.c2v
-        f = floor_of(surface)
-        inside = f.inside(x, self.depth)
-        n_in = inside[c2v].sum(axis=1, dtype=np.int8)
-        on = np.zeros(len(x), dtype=bool)
-        on[c2v[n_in == 1]] = True
-        on &= ~inside
-        y = x.copy()
-        y[on] = f.project(x[on])
+        c2v, f = self.c2v, floor_of(surface)
+        y, on, _ = self.snapped(surface)
         near = on[c2v].any(axis=1)
         redo = np.flatnonzero(near | self.dirty)
         cv = c2v[redo]
