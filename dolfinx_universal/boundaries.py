@@ -1586,6 +1586,13 @@ class Domain(Boundary):
         first = [(self.container, False)] if self.container is not None else []
         return first + [(b, True) for b in self.bodies]
 
+    def nearest_component(self, x: npt.ArrayLike) -> npt.NDArray[np.intp]:
+        """Index in :attr:`components` of the component nearest to each point ``(n,)``
+        (ties: the first, the container)."""
+        pts = np.asarray(x, dtype=np.float64)
+        dist = [np.abs(c.signed_distance(pts)) for c, _ in self.components]
+        return np.argmin(np.reshape(dist, (len(dist), len(pts))), axis=0)
+
     @property
     def euler_characteristic(self) -> int:
         """Euler characteristic of Gamma: the sum over the components (surfaces only).

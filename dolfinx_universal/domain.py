@@ -180,14 +180,12 @@ class MeshedDomain:
         """
         facets = self.facet_tags.find(IMMERSED)
         boundary = self.conforming.boundary
-        comps = boundary.components if isinstance(boundary, Domain) else [(boundary, False)]
-        if len(comps) == 1:
+        if not isinstance(boundary, Domain) or len(boundary.components) == 1:
             return [facets]
         fdim = self.mesh.topology.dim - 1
         mid = dmesh.compute_midpoints(self.mesh, fdim, facets)[:, : self.mesh.geometry.dim]
-        dist = np.array([np.abs(c.signed_distance(mid)) for c, _ in comps]).reshape(-1, len(mid))
-        nearest = np.argmin(dist, axis=0)
-        return [facets[nearest == k] for k in range(len(comps))]
+        nearest = boundary.nearest_component(mid)
+        return [facets[nearest == k] for k in range(len(boundary.components))]
 
 
 def check_components(boundary: Boundary, n: int = 2048) -> None:

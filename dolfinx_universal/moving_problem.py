@@ -325,17 +325,14 @@ class MovingStokes:
         """Which velocity nodes (blocks of V) on Gamma_h belong to a body: all, unless the
         current domain has a container, whose nodes are those nearer to it than to every
         body."""
+        from .boundaries import Domain
+
         boundary = self.md.boundary
-        container = getattr(boundary, "container", None)
-        if container is None or len(blocks) == 0:
+        if not isinstance(boundary, Domain) or boundary.container is None or len(blocks) == 0:
             return np.ones(len(blocks), dtype=bool)
         x = self.V.tabulate_dof_coordinates()[blocks, : self.gdim]
-        to_container = np.abs(container.signed_distance(x))
-        bodies = getattr(boundary, "bodies", ())
-        if not bodies:
-            return np.zeros(len(blocks), dtype=bool)
-        to_body = np.min([np.abs(b.signed_distance(x)) for b in bodies], axis=0)
-        return to_body < to_container
+        is_body = np.array([body for _, body in boundary.components])
+        return is_body[boundary.nearest_component(x)]
 
     def boundary_conditions(
         self,
