@@ -31,6 +31,7 @@ from .moving import MovingDomain
 from .moving_problem import MovingLinearProblem, MovingStokes
 from .quality import quality_report
 from .relax import relax_vertices
+from .sizing import box_size, refine_size, threshold
 from .surfaces import Ellipsoid, ImplicitSurface, Sphere, Surface, Torus
 from .validation import MeshingError
 
@@ -68,6 +69,7 @@ __all__ = [
     "a15_mesh",
     "bcc_mesh",
     "boundary_dof_data",
+    "box_size",
     "conditioning_angle",
     "conform",
     "curved_mesh",
@@ -79,6 +81,8 @@ __all__ = [
     "positive_edges",
     "positively_cut",
     "quality_report",
+    "refine_size",
     "refine_uniform",
     "relax_vertices",
+    "threshold",
 ]

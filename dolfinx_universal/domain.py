@@ -22,8 +22,8 @@ from .dimensions import cell_kernels
 from .graded import EDGE_FACTOR, graded_mesh
 from .graded_tet import BandSizeField
 from .quality import quality_report
-from .sizing import SizeField, feature_size, target_sizes
-from .validation import MeshingError, where
+from .sizing import SizeField, SizeFunction, _MinSize, feature_size, target_sizes
+from .validation import MeshingError, collective_call, where
 
 __all__ = [
     "DEFAULT_MAP",
@@ -377,6 +377,7 @@ def mesh_domain(
     max_cells: float = MAX_CELLS,
     relax: bool = True,
     tet_background: str = "auto",
+    size_field: SizeFunction | None = None,
 ) -> MeshedDomain:
     """Mesh the domain bounded by ``boundary``: the one call a user makes (collective).
 
@@ -442,6 +443,18 @@ def mesh_domain(
         better); where the octree's dihedral angles leave :data:`AUTO_DIHEDRAL`, the A15
         background of the same smallest size instead (one more round, if within
         ``max_cells``; if that fails, the octree's mesh is kept).
+    size_field
+        A user size field, ``(n, gdim) -> (n,)`` target edge lengths (``inf``: no
+        constraint), the same function on every rank (e.g.
+        :func:`~dolfinx_universal.sizing.threshold`,
+        :func:`~dolfinx_universal.sizing.box_size`, or the minimum of several;
+        :func:`~dolfinx_universal.sizing.refine_size` in an adaptive loop): the background's
+        size is the smaller of it and the geometry's own (and at most ``h``). Like every
+        size, it is sampled at a few points per quadtree / octree cell (features of it much
+        narrower than the cells there can be missed). On surfaces it needs the graded
+        octree (``tet_background="auto"`` takes it): each component's uniform band takes
+        the smallest value of the field on the component's samples, the field counts as
+        given beyond the bands.
 
     Returns
     -------
@@ -466,6 +479,8 @@ def mesh_domain(
         map = DEFAULT_MAP[3 if getattr(boundary, "gdim", 2) == 3 else 2]
     if map not in MAPS:
         raise ValueError(f"unknown map {map!r}: choose one of {MAPS}")
+    if size_field is not None and not callable(size_field):
+        raise ValueError(f"size_field must be a callable of points, got {size_field!r}")
     if int(max_rounds) != max_rounds or max_rounds < 0:
         raise ValueError(f"max_rounds must be a non-negative integer, got {max_rounds}")
     degree = int(degree)
@@ -480,10 +495,12 @@ def mesh_domain(
     if getattr(boundary, "gdim", 2) == 3:
         plan = _tet_plan(
             comm, boundary, h, degree, box, relaxation_factor, size_factor, tet_background,
-            max_cells,
+            max_cells, size_field,
         )  # fmt: skip
     else:
         plan = _GradedPlan.create(comm, boundary, h, degree, box, relaxation_factor, size_factor)
+        if size_field is not None:
+            plan.user = _UserSize(comm, size_field, plan.box)
     timings["sizing"] += time.perf_counter() - t
 
     rounds: list[str] = []
@@ -626,11 +643,56 @@ class _Plan:
         )
 
 
+class _UserSize:
+    """A user's ``size_field``, its values checked, and the cells it adds to an estimate."""
+
+    SAMPLES = {2: 128, 3: 32}
+    """Lattice points per side of the box at which :meth:`extra_cells` samples the field
+    (16384 in 2D, 32768 in 3D: a few milliseconds for the usual fields)."""
+
+    def __init__(self, comm: MPI.Comm, fn: SizeFunction, box: Float) -> None:
+        self.comm, self.fn, self.box = comm, fn, box
+
+    def __call__(self, x: Float) -> Float:
+        x = np.asarray(x, dtype=np.float64)
+        out = np.asarray(self.fn(x), dtype=np.float64)
+        if out.shape != (len(x),):
+            raise ValueError(f"size_field returned shape {out.shape} for {len(x)} points")
+        bad = ~(out > 0)  # NaN too (inf: no constraint)
+        if bad.any():
+            raise ValueError(
+                f"size_field returned {out[bad][0]!r} at {where(x[bad])}: sizes must be "
+                "positive (or inf)"
+            )
+        return out
+
+    def extra_cells(self, h: float, cells_per_volume: float) -> float:
+        """Cells the field adds to a background of size ``h`` (collective): the integral of
+        ``cells_per_volume (s^-d - h^-d)`` where ``s = min(field, h) < h``, by the midpoint
+        rule on a lattice of :data:`SAMPLES` points per side (features narrower than its
+        spacing are missed, as the quadtree may miss them)."""
+        d = self.box.shape[1]
+        n = self.SAMPLES[d]
+        axes = [
+            self.box[0, i] + (np.arange(n) + 0.5) * (self.box[1, i] - self.box[0, i]) / n
+            for i in range(d)
+        ]
+        pts = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, d)
+        mine = pts[self.comm.rank :: self.comm.size]
+        sizes = collective_call(self.comm, "the size field", self, mine)
+        s = np.minimum(sizes, h)
+        cell = float(np.prod(self.box[1] - self.box[0])) / len(pts)
+        local = float(np.sum(cells_per_volume * cell * (s**-d - h**-d)))
+        return float(self.comm.allreduce(local, op=MPI.SUM))
+
+
 class _GradedPlan(_Plan):
     """Triangles: a graded acute quadtree background sized by a field refined locally."""
 
     local_size = True
     name = "graded"
+    user: _UserSize | None = None
+    """The user's ``size_field``, in the minimum with :attr:`field`."""
 
     def __init__(self, box: Float, field_: SizeField, feature: Float, rho: Float, h: float):
         self.box, self.field, self.feature, self.rho, self.h = box, field_, feature, rho, h
@@ -658,19 +720,25 @@ class _GradedPlan(_Plan):
         )
         return cls(box_arr, field_, feature, rho, h)
 
+    def _size(self) -> SizeFunction:
+        return self.field if self.user is None else _MinSize(self.field, self.user)
+
     def sizes(self) -> Float:
-        return self.field(self.points)
+        return self._size()(self.points)
 
     def estimate(self) -> float:
-        return _estimate_cells(self.points, self.sizes(), self.box, self.h)
+        near = _estimate_cells(self.points, self.sizes(), self.box, self.h)
+        if self.user is None:
+            return near
+        return near + self.user.extra_cells(self.h, 1.0 / 0.4)  # 0.4 s^2 per triangle
 
     def background(self, comm: MPI.Comm) -> dmesh.Mesh:
         return graded_mesh(
-            comm, self.box, self.field, max_size=self.h, root_size=self.h / EDGE_FACTOR
+            comm, self.box, self._size(), max_size=self.h, root_size=self.h / EDGE_FACTOR
         )
 
     def refine(self, places: Float) -> None:
-        self.field = self.field.refined(places, 0.5 * self.field(places))
+        self.field = self.field.refined(places, 0.5 * self._size()(places))
 
 
 TET_BACKGROUNDS = ("auto", "graded", "a15")
@@ -705,12 +773,19 @@ def _tet_plan(
     size_factor: float | None,
     kind: str,
     max_cells: float,
+    size_field: SizeFunction | None = None,
 ) -> _Plan:
     """The background plan of a surface: graded, A15, or (auto) the graded octree where it
     has fewer than :data:`AUTO_RATIO` times the tetrahedra of the A15 background (counted
     on the octree itself, built once, unless either is estimated above ``max_cells``: then
     the smaller estimate, which :meth:`_Plan.check_size` refuses)."""
     args = (comm, boundary, h, degree, box, relaxation_factor, size_factor)
+    if size_field is not None:  # a uniform background cannot follow a field
+        if kind == "a15":
+            raise ValueError(
+                'size_field needs a graded background: tet_background="a15" is uniform'
+            )
+        return _GradedTetPlan.create(*args, max_cells, user=size_field)
     if kind == "a15":
         return _UniformPlan.create(*args)
     graded = _GradedTetPlan.create(*args, max_cells)
@@ -873,6 +948,8 @@ class _GradedTetPlan(_Plan):
         self.comm: MPI.Comm | None = None
         self.alternative: _UniformPlan | None = None
         """The A15 plan ``tet_background="auto"`` passed over (see :func:`_refined`)."""
+        self.user: _UserSize | None = None
+        """The user's ``size_field``: the octree's size is its minimum with :meth:`field`."""
 
     @property
     def base(self) -> float:
@@ -894,8 +971,12 @@ class _GradedTetPlan(_Plan):
         size_factor: float | None,
         max_cells: float = 5e6,
         gradation: float | None = None,
+        user: SizeFunction | None = None,
     ) -> _GradedTetPlan:
         g = TET_GRADATION if gradation is None else float(gradation)
+        # The user's field: checked and sampled on rank 0 (sizing), then kept on every rank
+        # (not broadcast: a user's function need not pickle).
+        user_size = None if user is None else _UserSize(comm, user, np.zeros((2, 3)))
 
         def sizing() -> _GradedTetPlan:
             from .sizing_3d import _area, _components, surface_feature_size
@@ -904,6 +985,8 @@ class _GradedTetPlan(_Plan):
             sf = surface_feature_size(boundary, 0.25 * h)
             target = target_sizes(sf.feature, h, degree, size_factor)
             comps = _components(boundary)
+            if user_size is not None:  # a uniform band: the field's smallest on the component
+                target = np.minimum(target, user_size(sf.points))
             sizes = np.array([target[sf.labels == k].min() for k in range(len(comps))])
             areas = np.array([_area(c) for c in comps])
             rho = np.full(len(sf.points), float(boundary.min_radius_of_curvature()))
@@ -921,10 +1004,13 @@ class _GradedTetPlan(_Plan):
 
         plan = _on_root(comm, sizing)
         plan.boundary, plan.comm = boundary, comm
+        if user_size is not None:
+            user_size.box = plan.box
+            plan.user = user_size
         return plan
 
     def __getstate__(self) -> dict[str, object]:
-        return {**self.__dict__, "boundary": None, "comm": None, "_tree": None}
+        return {**self.__dict__, "boundary": None, "comm": None, "_tree": None, "user": None}
 
     def _settle(self, boundary: Boundary) -> None:
         """Sample each component about one size apart and lower each component's size to
@@ -999,14 +1085,18 @@ class _GradedTetPlan(_Plan):
 
     def estimate(self) -> float:
         far = 12.0 * np.prod(self.box[1] - self.box[0]) / self.top**3
-        return self._near_cells(np.array([m for _, _, m in self.sources])) + float(far)
+        near = self._near_cells(np.array([m for _, _, m in self.sources])) + float(far)
+        if self.user is None:
+            return near
+        return near + self.user.extra_cells(self.top, 12.0)  # BCC: 12 per cube of side s
 
     def _octree(self, comm: MPI.Comm) -> tuple[Any, Any]:
         """The octree of the current sizes and its leaves (built once per sizes)."""
         from . import graded_tet
 
         if self._tree is None:
-            t = graded_tet._octree(self.box, self.field(), self.top, self.base, comm)
+            size = self.field() if self.user is None else _MinSize(self.field(), self.user)
+            t = graded_tet._octree(self.box, size, self.top, self.base, comm)
             self._tree = (t, graded_tet._classify(t))
         return self._tree
 

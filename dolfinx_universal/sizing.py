@@ -1,10 +1,13 @@
-"""Mesh sizes near Gamma from the geometry alone: local feature size and graded size fields."""
+"""Mesh sizes: from the geometry (local feature size, graded size fields) and from the user
+(distance thresholds, boxes, and the marked cells of an adaptive loop)."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
+
+from mpi4py import MPI
 
 import numpy as np
 import numpy.typing as npt
@@ -18,12 +21,16 @@ __all__ = [
     "FEATURE_DIVISOR",
     "CurveSamples",
     "SizeField",
+    "SizeFunction",
+    "box_size",
     "curve_samples",
     "feature_divisor",
     "feature_size",
     "medial_radius",
+    "refine_size",
     "size_field",
     "target_sizes",
+    "threshold",
 ]
 
 Float = npt.NDArray[np.float64]
@@ -708,3 +715,285 @@ def size_field(
     p = _stack(points_list, "points", 2)
     s = _stack(sizes_list, "sizes", 0)
     return SizeField(p, s, h_max, gradation, ratio=ratio)
+
+
+# ----------------------------------------------------------------------------- user fields
+SizeFunction = Callable[[Float], Float]
+"""A user size field: points ``(n, gdim)`` to target edge lengths ``(n,)`` (vectorised,
+pointwise, and the same function on every rank); ``inf`` asks for nothing there."""
+
+
+def _user_points(x: npt.ArrayLike) -> Float:
+    a = np.asarray(x, dtype=np.float64)
+    if a.ndim != 2 or a.shape[1] not in (2, 3):
+        raise ValueError(f"points must have shape (n, 2) or (n, 3), got {a.shape}")
+    return a
+
+
+class _Ramp:
+    """``size_min`` up to ``dist_min``, linear to ``size_max`` at ``dist_max``, then flat."""
+
+    def __init__(self, size_min: float, size_max: float, dist_min: float, dist_max: float):
+        self.size_min = _positive(size_min, "size_min")
+        self.size_max = _positive(size_max, "size_max")
+        self.dist_min, self.dist_max = float(dist_min), float(dist_max)
+        if not (np.isfinite(self.dist_min) and self.dist_min >= 0):
+            raise ValueError(f"dist_min must be a finite number >= 0, got {dist_min}")
+        if not (np.isfinite(self.dist_max) and self.dist_max >= self.dist_min):
+            raise ValueError(f"dist_max must be finite and >= dist_min, got {dist_max}")
+
+    def __call__(self, d: Float) -> Float:
+        if self.dist_max == self.dist_min:
+            return np.where(d <= self.dist_min, self.size_min, self.size_max)
+        t = np.clip((d - self.dist_min) / (self.dist_max - self.dist_min), 0.0, 1.0)
+        return self.size_min + t * (self.size_max - self.size_min)
+
+
+class _Threshold:
+    """:func:`threshold`: a ramp of the distance to a boundary or to points (picklable)."""
+
+    def __init__(self, source: Boundary | Float, ramp: _Ramp) -> None:
+        self.ramp = ramp
+        self.boundary: Boundary | None = None
+        self.points: Float | None = None
+        if isinstance(source, Boundary):
+            self.boundary = source
+        else:
+            self.points = readonly(_user_points(source))
+            if len(self.points) == 0:
+                raise ValueError("threshold needs at least one source point")
+        self._tree: cKDTree | None = None
+
+    def distance(self, x: Float) -> Float:
+        if self.boundary is not None:
+            gdim = getattr(self.boundary, "gdim", 2)
+            x = x[:, :gdim]
+            if len(x) == 0:
+                return np.zeros(0)
+            y = self.boundary.closest_point(x)
+            return np.sqrt(np.sum((x - y) ** 2, axis=1))
+        assert self.points is not None
+        if self._tree is None:
+            self._tree = cKDTree(self.points)
+        return self._tree.query(x[:, : self.points.shape[1]], workers=_WORKERS)[0]
+
+    def __call__(self, x: npt.ArrayLike) -> Float:
+        return self.ramp(self.distance(_user_points(x)))
+
+    def __getstate__(self) -> dict[str, object]:
+        return {**self.__dict__, "_tree": None}
+
+
+def threshold(
+    source: Boundary | npt.ArrayLike,
+    size_min: float,
+    size_max: float,
+    dist_min: float,
+    dist_max: float,
+) -> SizeFunction:
+    """A size growing with the distance to a curve, a surface or points.
+
+    gmsh's ``Distance`` and ``Threshold`` fields in one: with ``d`` the distance of ``x`` to
+    ``source``, the size is ``size_min`` where ``d <= dist_min``, grows linearly to
+    ``size_max`` at ``d = dist_max`` and stays there. Give it to
+    :func:`~dolfinx_universal.mesh_domain` as ``size_field`` (alone, or in the minimum of
+    several fields).
+
+    Parameters
+    ----------
+    source
+        A :class:`~dolfinx_universal.Boundary` (curve, surface or :class:`Domain`: the
+        distance to it by its closest-point map) or points ``(m, gdim)``.
+    size_min, size_max
+        Sizes near and far from ``source`` (positive).
+    dist_min, dist_max
+        Where the size starts and stops growing, ``0 <= dist_min <= dist_max``.
+
+    Returns
+    -------
+    The size field, a callable ``(n, gdim) -> (n,)``.
+    """
+    ramp = _Ramp(size_min, size_max, dist_min, dist_max)
+    src = source if isinstance(source, Boundary) else np.asarray(source, dtype=np.float64)
+    return _Threshold(src, ramp)
+
+
+class _BoxSize:
+    """:func:`box_size`."""
+
+    def __init__(self, box: Float, ramp: _Ramp) -> None:
+        self.box, self.ramp = box, ramp
+
+    def __call__(self, x: npt.ArrayLike) -> Float:
+        p = _user_points(x)[:, : self.box.shape[1]]
+        gap = np.maximum(np.maximum(self.box[0] - p, p - self.box[1]), 0.0)
+        return self.ramp(np.sqrt(np.sum(gap * gap, axis=1)))
+
+
+def box_size(
+    box: npt.ArrayLike, size_in: float, size_out: float, thickness: float = 0.0
+) -> SizeFunction:
+    """The size ``size_in`` in a box and ``size_out`` outside it (gmsh's ``Box`` field).
+
+    Parameters
+    ----------
+    box
+        ``[[x0, y0], [x1, y1]]`` (or its 3D counterpart).
+    size_in, size_out
+        Sizes inside and far outside the box (positive).
+    thickness
+        Width of the layer around the box over which the size grows linearly from
+        ``size_in`` to ``size_out`` (0: a jump at the box's boundary).
+
+    Returns
+    -------
+    The size field, a callable ``(n, gdim) -> (n,)``.
+    """
+    b = np.asarray(box, dtype=np.float64)
+    if b.ndim != 2 or b.shape[0] != 2 or b.shape[1] not in (2, 3) or not np.isfinite(b).all():
+        raise ValueError(f"box must be [[x0, y0], [x1, y1]] (or 3D), got {box!r}")
+    if not (b[1] > b[0]).all():
+        raise ValueError(f"box must have its lower corner first, got {b.tolist()}")
+    return _BoxSize(readonly(b), _Ramp(size_in, size_out, 0.0, thickness))
+
+
+class _MinSize:
+    """The pointwise minimum of size fields."""
+
+    def __init__(self, *fields: SizeFunction) -> None:
+        self.fields = fields
+
+    def __call__(self, x: npt.ArrayLike) -> Float:
+        p = _user_points(x)
+        out = np.full(len(p), np.inf)
+        for f in self.fields:
+            out = np.minimum(out, np.asarray(f(p), dtype=np.float64).reshape(len(p)))
+        return out
+
+
+def refine_size(
+    mesh: Any,
+    cells: npt.ArrayLike,
+    size_field: SizeFunction | None = None,
+    factor: float = 0.6,
+    gradation: float = 0.2,
+) -> SizeFunction:
+    """The size field of the next mesh of an adaptive loop: finer at the marked cells.
+
+    Point sources at the vertex means of the marked ``cells`` with sizes ``factor`` times
+    the local mesh size there (the longest edge of the cells around their vertices: on a
+    quadtree leaf, the leaf's longest edge), growing by ``gradation`` per
+    unit length away from them (a :class:`SizeField`), in the minimum with ``size_field``
+    (the previous loop's field, if any). Give the result to
+    :func:`~dolfinx_universal.mesh_domain` as ``size_field``: the new background is finer
+    at the marked cells (twice as fine for the default ``factor``), and the domain is
+    conformed to it (no remeshing). Collective: the marked cells of every rank are
+    gathered, so that the field is the same on every rank (and does not depend on the
+    partition).
+
+    Parameters
+    ----------
+    mesh
+        The current mesh (a DOLFINx mesh, straight or curved).
+    cells
+        Marked cells (local indices, e.g. by an error indicator) ``(k,)``.
+    size_field
+        The previous size field, or ``None``.
+    factor
+        Largest size of the new cells relative to the local mesh size, in ``(0, 1]``. The
+        quadtree's sizes are powers of two: a factor in ``(0.5, 1)`` halves the marked
+        leaves once (the default 0.6 leaves room for the rounding of the measured size; a
+        factor of exactly 0.5 can split twice), one in ``(0.25, 0.5)`` twice.
+    gradation
+        Growth of the size away from the marked cells (per unit length).
+
+    Returns
+    -------
+    The size field, a callable ``(n, gdim) -> (n,)``.
+    """
+    from .validation import vertex_reduce
+
+    factor = float(factor)
+    if not (0 < factor <= 1):
+        raise ValueError(f"factor must be in (0, 1], got {factor}")
+    top = mesh.topology
+    tdim, gdim = top.dim, mesh.geometry.dim
+    cmap = top.index_map(tdim)
+    num_cells = cmap.size_local + cmap.num_ghosts
+    marked = np.unique(np.asarray(cells, dtype=np.int64).reshape(-1))
+    if len(marked) and (marked[0] < 0 or marked[-1] >= num_cells):
+        raise ValueError(f"cells must be local cell indices in [0, {num_cells})")
+    # Each cell's vertices (the geometry's first tdim + 1 nodes, in the topology's order).
+    xv = mesh.geometry.x[mesh.geometry.dofmaps[0][:num_cells, : tdim + 1], :gdim]
+    diam = np.zeros(num_cells)
+    for i in range(tdim + 1):
+        for j in range(i + 1, tdim + 1):
+            diam = np.maximum(diam, np.sqrt(np.sum((xv[:, i] - xv[:, j]) ** 2, axis=1)))
+    # The local mesh size at a marked cell: the longest edge of the cells around its
+    # vertices (on a quadtree leaf, the leaf's longest edge, which its refinement halves;
+    # a cell's own diameter is down to 0.75 of it, and half of that would split twice).
+    top.create_connectivity(tdim, 0)
+    c2v = top.connectivity(tdim, 0).array.reshape(-1, tdim + 1)[:num_cells]
+    imv = top.index_map(0)
+    vsize = np.zeros(imv.size_local + imv.num_ghosts)
+    np.maximum.at(vsize, c2v.ravel(), np.repeat(diam, tdim + 1))
+    vsize = vertex_reduce(imv, vsize, "max")
+    local_size = vsize[c2v[marked]].max(axis=1) if len(marked) else np.zeros(0)
+    owned = marked[marked < cmap.size_local]  # each marked cell once, by its owner
+    keep = np.isin(marked, owned)
+    comm = mesh.comm
+    points = np.concatenate(comm.allgather(xv[marked[keep]].mean(axis=1))).reshape(-1, gdim)
+    sizes = np.concatenate(comm.allgather(factor * local_size[keep]))
+    h_max = comm.allreduce(float(diam[: cmap.size_local].max(initial=0.0)), op=MPI.MAX)
+    if len(points) == 0:  # nothing marked: the previous field
+        if size_field is None:
+            raise ValueError("refine_size: no cell is marked and no size field is given")
+        return size_field
+    h_max = 2.0 * max(h_max, float(sizes.max()))
+    field: SizeFunction
+    if gdim == 2:
+        field = SizeField(points, sizes, h_max, gradation)
+    else:
+        field = _GradedSources(points, sizes, h_max, _positive(gradation, "gradation"))
+    field = _Unbounded(field, h_max)
+    return field if size_field is None else _MinSize(size_field, field)
+
+
+class _Unbounded:
+    """A field capped at ``h_max`` with the cap lifted: ``inf`` (no constraint) there."""
+
+    def __init__(self, field: SizeFunction, h_max: float) -> None:
+        self.field, self.h_max = field, h_max
+
+    def __call__(self, x: npt.ArrayLike) -> Float:
+        h = np.asarray(self.field(np.asarray(x, dtype=np.float64)), dtype=np.float64)
+        return np.where(h >= self.h_max, np.inf, h)
+
+
+class _GradedSources:
+    """``min(h_max, min_i (s_i + g |x - p_i|))`` in any dimension, from below within 10 %:
+    the sources in geometric bins of size (ratio 1.1), each bin contributing its smallest
+    size plus ``g`` times the distance to its nearest source (k-d trees; no grid)."""
+
+    def __init__(self, points: Float, sizes: Float, h_max: float, gradation: float) -> None:
+        self.h_max, self.gradation = h_max, gradation
+        key = np.floor(np.log(sizes) / np.log(1.1)).astype(np.intp)
+        self.bins = [(float(sizes[key == k].min()), points[key == k]) for k in np.unique(key)]
+        self._trees: list[cKDTree] | None = None
+
+    def __call__(self, x: npt.ArrayLike) -> Float:
+        p = _user_points(x)
+        if self._trees is None:
+            self._trees = [cKDTree(pts) for _, pts in self.bins]
+        h = np.full(len(p), self.h_max)
+        for (s_b, pts), tree in zip(self.bins, self._trees):
+            more = np.flatnonzero(h > s_b)
+            if not len(more):
+                continue
+            bound = (float(h[more].max()) - s_b) / self.gradation
+            d = tree.query(p[more, : pts.shape[1]], distance_upper_bound=bound, workers=_WORKERS)[0]
+            h[more] = np.minimum(h[more], s_b + self.gradation * d)
+        return h
+
+    def __getstate__(self) -> dict[str, object]:
+        return {**self.__dict__, "_trees": None}
