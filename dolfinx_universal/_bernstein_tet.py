@@ -15,9 +15,8 @@ from math import factorial
 
 import basix
 import numpy as np
-import numpy.typing as npt
 
-from ._geometry import readonly
+from ._geometry import Float, Int, readonly
 
 __all__ = [
     "CHILDREN",
@@ -31,8 +30,6 @@ __all__ = [
     "subdivision",
 ]
 
-Float = npt.NDArray[np.float64]
-Int = npt.NDArray[np.int64]
 
 _P = np.eye(4)[:, 1:]  # reference vertices P0..P3
 _M = {(i, j): 0.5 * (_P[i] + _P[j]) for i in range(4) for j in range(i + 1, 4)}

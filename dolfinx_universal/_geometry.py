@@ -1,10 +1,13 @@
-"""Triangle geometry on vertex arrays: signed areas, edge lengths, diameters, interior angles.
+"""Triangle geometry on vertex arrays (signed areas, edge lengths, diameters, interior angles),
+the array types, and the small input checks and planar vector helpers the modules share.
 
 Every function takes vertex coordinates ``x`` ``(num_vertices, gdim)`` (``gdim >= 2``; only
 x and y are read) and triangles ``cells`` ``(m, 3)`` of vertex indices.
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -13,18 +16,63 @@ __all__ = [
     "Bool",
     "Float",
     "Int",
+    "as_points",
     "cell_diameters",
+    "cross2",
     "edge_lengths",
     "interior_angles",
+    "norm2",
+    "positive",
     "signed_areas",
 ]
 
 Float = npt.NDArray[np.float64]
 """Real arrays (coordinates, distances, signs)."""
-Int = npt.NDArray[np.int32] | npt.NDArray[np.int64]
-"""Index arrays (vertices, cells)."""
+Int = npt.NDArray[np.signedinteger[Any]]
+"""Index arrays (vertices, cells; int32 from DOLFINx, int64 or intp from numpy)."""
 Bool = npt.NDArray[np.bool_]
 """Flag arrays."""
+
+
+def as_points(x: npt.ArrayLike, name: str = "x", dim: int = 2) -> Float:
+    """``x`` as a contiguous float64 array ``(n, dim)``, checked finite.
+
+    ``dim = 2`` (planar boundaries): ``(n, 2)`` or ``(n, 3)``, of which the first two columns
+    are kept. ``dim = 3`` (surfaces): exactly ``(n, 3)``.
+    """
+    a = np.asarray(x, dtype=np.float64)
+    if dim == 3:
+        if a.ndim != 2 or a.shape[1] != 3:
+            raise ValueError(f"{name} must have shape (n, 3), got {a.shape}")
+        a = np.ascontiguousarray(a)
+    elif a.ndim != 2 or a.shape[1] not in (2, 3):
+        raise ValueError(f"{name} must have shape (n, 2) or (n, 3), got {a.shape}")
+    else:
+        a = np.ascontiguousarray(a[:, :2])
+    bad = ~np.isfinite(a).all(axis=1)
+    if bad.any():
+        i = int(np.argmax(bad))
+        kind = "NaN" if np.isnan(a[i]).any() else "inf"
+        raise ValueError(f"{name} contains {kind} at index {i} ({name}={a[i].tolist()})")
+    return a
+
+
+def positive(value: float, name: str) -> float:
+    """``value`` as a float, checked positive and finite (``name`` for the error)."""
+    value = float(value)
+    if not (np.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive finite number, got {value}")
+    return value
+
+
+def norm2(v: Float) -> Float:
+    """Euclidean norms of planar vectors ``(..., 2)``."""
+    return np.sqrt(v[..., 0] ** 2 + v[..., 1] ** 2)
+
+
+def cross2(u: Float, v: Float) -> Float:
+    """The planar cross product ``u_x v_y - u_y v_x`` of vectors ``(..., 2)``."""
+    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
 
 
 def readonly(a: npt.NDArray) -> npt.NDArray:

@@ -34,6 +34,7 @@ import numpy as np
 import numpy.typing as npt
 from dolfinx import mesh as dmesh
 
+from ._geometry import Float, Int
 from .background import create_mesh, layout_partitioner
 
 __all__ = [
@@ -45,8 +46,6 @@ __all__ = [
     "bcc_tetrahedralisation",
 ]
 
-Float = npt.NDArray[np.float64]
-Int = npt.NDArray[np.int64]
 
 A15_SITES = np.array(
     [(0, 0, 0), (2, 2, 2), (1, 0, 2), (3, 0, 2), (2, 1, 0), (2, 3, 0), (0, 2, 1), (0, 2, 3)],

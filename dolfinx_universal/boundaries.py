@@ -15,7 +15,7 @@ from scipy import ndimage
 from scipy.interpolate import CubicSpline
 from scipy.spatial import cKDTree
 
-from ._geometry import rot90
+from ._geometry import Bool, Float, Int, as_points, cross2, norm2, positive, rot90
 
 __all__ = [
     "Boundary",
@@ -29,9 +29,6 @@ __all__ = [
     "RigidMotion",
 ]
 
-Float = npt.NDArray[np.float64]
-Bool = npt.NDArray[np.bool_]
-Int = npt.NDArray[np.intp]
 ArrayFn = Callable[[Float], Float]
 
 _EPS = float(np.finfo(np.float64).eps)
@@ -39,29 +36,6 @@ _GRID_CELLS = 1024  # cells of the sign/distance acceleration grid along the bbo
 
 
 # ----------------------------------------------------------------------------- helpers
-def _as_points(x: npt.ArrayLike, name: str = "x", dim: int = 2) -> Float:
-    """``x`` as a contiguous float64 array ``(n, dim)``, checked finite.
-
-    ``dim = 2`` (planar boundaries): ``(n, 2)`` or ``(n, 3)``, of which the first two columns
-    are kept. ``dim = 3`` (surfaces): exactly ``(n, 3)``.
-    """
-    a = np.asarray(x, dtype=np.float64)
-    if dim == 3:
-        if a.ndim != 2 or a.shape[1] != 3:
-            raise ValueError(f"{name} must have shape (n, 3), got {a.shape}")
-        a = np.ascontiguousarray(a)
-    elif a.ndim != 2 or a.shape[1] not in (2, 3):
-        raise ValueError(f"{name} must have shape (n, 2) or (n, 3), got {a.shape}")
-    else:
-        a = np.ascontiguousarray(a[:, :2])
-    bad = ~np.isfinite(a).all(axis=1)
-    if bad.any():
-        i = int(np.argmax(bad))
-        kind = "NaN" if np.isnan(a[i]).any() else "inf"
-        raise ValueError(f"{name} contains {kind} at index {i} ({name}={a[i].tolist()})")
-    return a
-
-
 def _vector(v: npt.ArrayLike, name: str, dim: int = 2) -> Float:
     """A finite ``dim``-vector (the first ``dim`` numbers of ``v``)."""
     a = np.asarray(v, dtype=np.float64).reshape(-1)[:dim]
@@ -69,13 +43,6 @@ def _vector(v: npt.ArrayLike, name: str, dim: int = 2) -> Float:
         words = {2: "two", 3: "three"}.get(dim, str(dim))
         raise ValueError(f"{name} must be {words} finite numbers, got {v!r}")
     return a
-
-
-def _positive(value: float, name: str) -> float:
-    value = float(value)
-    if not (np.isfinite(value) and value > 0):
-        raise ValueError(f"{name} must be a positive finite number, got {value}")
-    return value
 
 
 def _distance(distance: float) -> float:
@@ -108,14 +75,10 @@ def _call(fn: ArrayFn, arg: Float, shape: tuple[int, ...]) -> Float:
     return np.broadcast_to(np.asarray(fn(arg), dtype=np.float64), shape).copy()
 
 
-def _norm(v: Float) -> Float:
-    return np.sqrt(v[..., 0] ** 2 + v[..., 1] ** 2)
-
-
 def _normd(v: Float) -> Float:
     """Euclidean norms of the rows of ``v (..., 2)`` (as :func:`_norm`) or ``(..., 3)``."""
     if v.shape[-1] == 2:
-        return _norm(v)
+        return norm2(v)
     return np.sqrt(v[..., 0] ** 2 + v[..., 1] ** 2 + v[..., 2] ** 2)
 
 
@@ -186,16 +149,12 @@ def _rotate(v: Float, c: float, s: float) -> Float:
 
 
 def _unit(v: Float) -> Float:
-    return v / _norm(v)[:, None]
+    return v / norm2(v)[:, None]
 
 
 def _chords(p: Float) -> Float:
     """Edge lengths of the closed polyline ``p (m, 2)``, shape ``(m,)``."""
-    return _norm(np.roll(p, -1, axis=0) - p)
-
-
-def _cross(u: Float, v: Float) -> Float:
-    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+    return norm2(np.roll(p, -1, axis=0) - p)
 
 
 def _signed_area(p: Float) -> float:
@@ -278,12 +237,12 @@ def _candidates(
         done = (d[:, -1] > lim[:, 0]) | (k == m)
         r, c = np.nonzero((d <= lim) & done[:, None])
         jj, dd, xr = j[r, c], d[r, c], x[todo[r]]
-        keep = (c == 0) | (dd <= _norm(xr - pts[prev[jj]])) & (dd <= _norm(xr - pts[nxt[jj]]))
+        keep = (c == 0) | (dd <= norm2(xr - pts[prev[jj]])) & (dd <= norm2(xr - pts[nxt[jj]]))
         ps.append(todo[r[keep]])
         ss.append(jj[keep])
         todo = todo[~done]
     for chunk in np.array_split(todo, todo.size * m // 1_000_000 + 1) if todo.size else []:
-        d = _norm(x[chunk][:, None, :] - pts[None])
+        d = norm2(x[chunk][:, None, :] - pts[None])
         lim = d.min(axis=1, keepdims=True) + reach
         cand = (d <= lim) & (d <= d[:, prev]) & (d <= d[:, nxt])
         cand[np.arange(len(chunk)), d.argmin(axis=1)] = True
@@ -292,7 +251,7 @@ def _candidates(
         ss.append(c)
     if not ps:
         return np.zeros(0, dtype=np.intp), np.zeros(0, dtype=np.intp)
-    return np.concatenate(ps), np.concatenate(ss)
+    return np.concatenate(ps).astype(np.intp), np.concatenate(ss).astype(np.intp)
 
 
 _WINDOW = 16
@@ -317,7 +276,7 @@ def _window_candidates(
     off = np.arange(-w - 1, w + 2)
     win = start[:, None] + (j0 - start)[:, None] + off
     win = start[:, None] + (win - start[:, None]) % size[:, None]
-    d = _norm(x[:, None, :] - pts[win])  # (points, 2 w + 3): the window and one more each side
+    d = norm2(x[:, None, :] - pts[win])  # (points, 2 w + 3): the window and one more each side
     inner = d[:, 1:-1]
     # A ball count, slightly enlarged against rounding: all samples that close are inner.
     wide = lim * (1 + 1e-9) + 1e-300
@@ -430,7 +389,7 @@ class _Grid:
         inside, k = self._cells(x)
         out = self.lb.ravel()[k].astype(np.float64)
         xo = x[~inside]
-        out[~inside] = _norm(np.maximum(np.maximum(self.box[0] - xo, xo - self.box[1]), 0.0))
+        out[~inside] = norm2(np.maximum(np.maximum(self.box[0] - xo, xo - self.box[1]), 0.0))
         return out
 
 
@@ -499,7 +458,7 @@ class Boundary(abc.ABC):
         y
             ``(n, 2)``: the closest points ``pi(x)``.
         """
-        x = _as_points(x, dim=self.gdim)
+        x = as_points(x, dim=self.gdim)
         y = self.closest_point(x)
         return self.sign(x) * _normd(x - y), y
 
@@ -545,7 +504,7 @@ class Boundary(abc.ABC):
         normal
             ``(n, 2)``: the unit outward normals ``N(pi(x))``.
         """
-        x = _as_points(x, dim=self.gdim)
+        x = as_points(x, dim=self.gdim)
         phi, y = self.project(x)
         return phi, y, self.normal(y)
 
@@ -577,7 +536,7 @@ class Boundary(abc.ABC):
         discards most points; the nearest dense sample of Gamma, within ``distance + spacing``
         of every point within ``distance``, settles the others).
         """
-        x = _as_points(x)
+        x = as_points(x)
         d = _distances(distance, len(x))
         lb = self._lower_bound(x)
         mask = lb <= d
@@ -643,15 +602,15 @@ class Circle(Boundary):
 
     def __init__(self, center: npt.ArrayLike, radius: float) -> None:
         self.center = _vector(center, "center")
-        self.radius = _positive(radius, "radius")
+        self.radius = positive(radius, "radius")
 
     def sign(self, x: npt.ArrayLike) -> Float:
-        d = _as_points(x) - self.center
+        d = as_points(x) - self.center
         return np.where((d * d).sum(axis=1) < self.radius**2, -1.0, 1.0)
 
     def _direction(self, x: npt.ArrayLike) -> Float:
-        d = _as_points(x) - self.center
-        r = _norm(d)
+        d = as_points(x) - self.center
+        r = norm2(d)
         u = np.tile([1.0, 0.0], (len(d), 1))  # the centre projects onto c + (R, 0)
         pos = r > 0
         u[pos] = d[pos] / r[pos, None]
@@ -670,11 +629,11 @@ class Circle(Boundary):
         return self.center + self.radius * u, u
 
     def near(self, x: npt.ArrayLike, distance: float | npt.ArrayLike) -> Bool:
-        x = _as_points(x)
+        x = as_points(x)
         return self._lower_bound(x) <= _distances(distance, len(x))
 
     def _lower_bound(self, x: Float) -> Float:
-        return np.abs(_norm(x - self.center) - self.radius)
+        return np.abs(norm2(x - self.center) - self.radius)
 
     def bounding_box(self) -> Float:
         r = self.radius * (1 + 4 * _EPS)
@@ -745,7 +704,7 @@ class ImplicitCurve(Boundary):
         self.resolution, self.n_samples = int(resolution), int(n_samples)
         if self.resolution < 16 or self.n_samples < 64:
             raise ValueError("resolution must be at least 16 and n_samples at least 64")
-        self._scale = float(_norm(box[1] - box[0]))
+        self._scale = float(norm2(box[1] - box[0]))
         self.fd_step = 6e-6 * self._scale
 
     def _s(self, y: Float) -> Float:
@@ -762,7 +721,7 @@ class ImplicitCurve(Boundary):
         return (H + H.transpose(0, 2, 1)) / (4 * self.fd_step)
 
     def sign(self, x: npt.ArrayLike) -> Float:
-        return np.where(self._s(_as_points(x)) < 0, -1.0, 1.0)
+        return np.where(self._s(as_points(x)) < 0, -1.0, 1.0)
 
     def _to_curve(self, y: Float, iters: int = 8) -> Float:
         """Points moved onto Gamma by Newton steps along ``grad f``."""
@@ -862,7 +821,7 @@ class ImplicitCurve(Boundary):
                 break
             ya = y[act]
             g = self._g(ya)
-            gn = _norm(g)
+            gn = norm2(g)
             n = g / gn[:, None]
             tau = rot90(n)
             Ht = np.einsum("kij,kj->ki", self._H(ya), tau)
@@ -875,19 +834,19 @@ class ImplicitCurve(Boundary):
                 beta = np.where(q > 0, -b / q, -np.sign(b) * delta)
             dy = alpha[:, None] * n + np.clip(beta, -delta, delta)[:, None] * tau
             y[act] = ya + dy
-            step = _norm(dy)
+            step = norm2(dy)
             ok[act[step <= tol]] = True
             act = act[step > tol]  # NaN steps drop out unconverged
         return y, ok
 
     def closest_point(self, x: npt.ArrayLike) -> Float:
-        x = _as_points(x)
+        x = as_points(x)
         if not len(x):
             return np.empty((0, 2))
         pts, tree, prev, nxt, h = self._samples
         pi, si = _candidates(x, tree, pts, prev, nxt, 0.75 * h)
         y, ok = self._newton(x[pi], pts[si], h)
-        best = _best(pi, np.where(ok, _norm(y - x[pi]), np.inf))
+        best = _best(pi, np.where(ok, norm2(y - x[pi]), np.inf))
         bad = np.flatnonzero(~ok[best])
         if bad.size:
             raise RuntimeError(
@@ -897,9 +856,9 @@ class ImplicitCurve(Boundary):
         return y[best]
 
     def normal(self, y: npt.ArrayLike) -> Float:
-        y = _as_points(y)
+        y = as_points(y)
         g = self._g(y)
-        off = np.abs(self._s(y)) > 1e-12 * self._scale * _norm(g)
+        off = np.abs(self._s(y)) > 1e-12 * self._scale * norm2(g)
         if off.any():
             g[off] = self._g(self.closest_point(y[off]))
         return _unit(g)
@@ -916,8 +875,8 @@ class ImplicitCurve(Boundary):
     def min_radius_of_curvature(self) -> float:
         y = self._samples[0]
         g = self._g(y)
-        tau = rot90(g) / _norm(g)[:, None]
-        kappa = np.abs(np.einsum("ki,kij,kj->k", tau, self._H(y), tau)) / _norm(g)
+        tau = rot90(g) / norm2(g)[:, None]
+        kappa = np.abs(np.einsum("ki,kij,kj->k", tau, self._H(y), tau)) / norm2(g)
         return float(1 / kappa.max()) if kappa.max() > 0 else np.inf
 
 
@@ -1007,7 +966,7 @@ class ParametricCurve(Boundary):
         lo, hi = ts[si] - dt, ts[si] + dt
         glo, _, clo = ev(lo, xs)
         ghi, _, chi = ev(hi, xs)
-        t = np.where(_norm(clo - xs) <= _norm(chi - xs), lo, hi)  # no root: an endpoint
+        t = np.where(norm2(clo - xs) <= norm2(chi - xs), lo, hi)  # no root: an endpoint
         br = np.flatnonzero((glo <= 0) & (ghi >= 0))
         if br.size:
             xb = xs[br]
@@ -1019,14 +978,14 @@ class ParametricCurve(Boundary):
             )
         t = np.mod(t, T)
         y = self.point(t)
-        best = _best(pi, _norm(y - xs))
+        best = _best(pi, norm2(y - xs))
         return t[best], y[best]
 
     def _exact_sign(self, x: Float, t: Float, y: Float) -> Float:
         return np.where(((x - y) * self._outward(t)).sum(axis=1) < 0, -1.0, 1.0)
 
     def sign(self, x: npt.ArrayLike) -> Float:
-        x = _as_points(x)
+        x = as_points(x)
         s = self._grid.sign_code(x)
         m = s == 0
         if m.any():
@@ -1034,15 +993,15 @@ class ParametricCurve(Boundary):
         return s
 
     def project(self, x: npt.ArrayLike) -> tuple[Float, Float]:
-        x = _as_points(x)
+        x = as_points(x)
         t, y = self._project(x)
         s = self._grid.sign_code(x)
         m = s == 0
         s[m] = self._exact_sign(x[m], t[m], y[m])
-        return s * _norm(x - y), y
+        return s * norm2(x - y), y
 
     def project_normal(self, x: npt.ArrayLike) -> tuple[Float, Float, Float]:
-        x = _as_points(x)
+        x = as_points(x)
         project = type(self).project
         if not _native(self, ParametricCurve, "closest_point", "normal") or project not in (
             ParametricCurve.project,
@@ -1055,7 +1014,7 @@ class ParametricCurve(Boundary):
         s = self._grid.sign_code(x)
         m = s == 0
         s[m] = self._exact_sign(x[m], t[m], y[m])
-        return s * _norm(x - y), y, self._outward(t)
+        return s * norm2(x - y), y, self._outward(t)
 
     def _closest_normal(self, x: Float) -> tuple[Float, Float]:
         if not _native(self, ParametricCurve, "closest_point", "normal"):
@@ -1064,10 +1023,10 @@ class ParametricCurve(Boundary):
         return y, self._outward(t)
 
     def closest_point(self, x: npt.ArrayLike) -> Float:
-        return self._project(_as_points(x))[1]
+        return self._project(as_points(x))[1]
 
     def normal(self, y: npt.ArrayLike) -> Float:
-        return self._outward(self._project(_as_points(y))[0])
+        return self._outward(self._project(as_points(y))[0])
 
     def bounding_box(self) -> Float:
         p, h = self._samples[1], self._samples[5]
@@ -1098,7 +1057,7 @@ class ParametricCurve(Boundary):
     def min_radius_of_curvature(self) -> float:
         t = np.arange(4 * self.n_samples, dtype=np.float64) * (self.period / (4 * self.n_samples))
         d1, d2 = self.derivative(t), self.second_derivative(t)
-        kappa = np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / _norm(d1) ** 3
+        kappa = np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / norm2(d1) ** 3
         return float(1 / kappa.max()) if kappa.max() > 0 else np.inf
 
 
@@ -1126,7 +1085,7 @@ class PeriodicSpline(ParametricCurve):
         super().__init__(n_samples)
         if orientation not in ("auto", "ccw"):
             raise ValueError(f'orientation must be "auto" or "ccw", got {orientation!r}')
-        p = _as_points(points, "points")
+        p = as_points(points, "points")
         if len(p) > 1 and (p[0] == p[-1]).all():
             p = p[:-1]
         distinct = len(np.unique(p, axis=0))
@@ -1157,7 +1116,7 @@ class PeriodicSpline(ParametricCurve):
 
     def _build(self, p: Float) -> None:
         closed = np.vstack([p, p[:1]])
-        knots = np.concatenate([[0.0], np.cumsum(_norm(np.diff(closed, axis=0)))])
+        knots = np.concatenate([[0.0], np.cumsum(norm2(np.diff(closed, axis=0)))])
         self.points = p
         self.period = float(knots[-1])
         self._spline = CubicSpline(knots, closed, bc_type="periodic", axis=0)
@@ -1167,13 +1126,13 @@ class PeriodicSpline(ParametricCurve):
         m = max(self.n_samples, 16 * len(self.points))
         a = self.point(np.arange(m, dtype=np.float64) * (self.period / m))
         b = np.roll(a, -1, axis=0)
-        pairs = cKDTree((a + b) / 2).query_pairs(float(_norm(b - a).max()), output_type="ndarray")
+        pairs = cKDTree((a + b) / 2).query_pairs(float(norm2(b - a).max()), output_type="ndarray")
         i, j = pairs[:, 0], pairs[:, 1]
         gap = (j - i) % m
         i, j = i[(gap > 1) & (gap < m - 1)], j[(gap > 1) & (gap < m - 1)]
 
         def side(p: Float, q: Float, r: Float) -> Float:
-            return _cross(q - p, r - p)
+            return cross2(q - p, r - p)
 
         hit = (side(a[i], b[i], a[j]) * side(a[i], b[i], b[j]) <= 0) & (
             side(a[j], b[j], a[i]) * side(a[j], b[j], b[i]) <= 0
@@ -1297,9 +1256,9 @@ class PolarCurve(ParametricCurve):
         return (d2r - r) * u + 2 * dr * v
 
     def sign(self, x: npt.ArrayLike) -> Float:
-        d = _as_points(x) - self.center
+        d = as_points(x) - self.center
         th = np.arctan2(d[:, 1], d[:, 0])
-        return np.where(_norm(d) < _call(self.r, th, th.shape), -1.0, 1.0)
+        return np.where(norm2(d) < _call(self.r, th, th.shape), -1.0, 1.0)
 
     project = Boundary.project
 
@@ -1329,7 +1288,7 @@ class Ellipse(ParametricCurve):
     ) -> None:
         super().__init__(n_samples)
         self.center = _vector(center, "center")
-        self.a, self.b = _positive(a, "a"), _positive(b, "b")
+        self.a, self.b = positive(a, "a"), positive(b, "b")
         self.angle, self.period = float(angle), 2 * np.pi
         self._cs = np.cos(self.angle), np.sin(self.angle)
 
@@ -1344,7 +1303,7 @@ class Ellipse(ParametricCurve):
         return self.center - self.point(t)
 
     def _local(self, x: npt.ArrayLike) -> Float:
-        return _rotate(_as_points(x) - self.center, self._cs[0], -self._cs[1])
+        return _rotate(as_points(x) - self.center, self._cs[0], -self._cs[1])
 
     def sign(self, x: npt.ArrayLike) -> Float:
         p = self._local(x)
@@ -1449,9 +1408,9 @@ class RigidMotion(Boundary):
 
     def _to_base(self, x: npt.ArrayLike) -> Float:
         if self.gdim == 2:
-            x = _as_points(x) - self.center - self.translation
+            x = as_points(x) - self.center - self.translation
             return self.center + _rotate(x, self._cs[0], -self._cs[1])
-        return self.center + (_as_points(x, dim=3) - self.center - self.translation) @ (
+        return self.center + (as_points(x, dim=3) - self.center - self.translation) @ (
             self.rotation
         )
 
@@ -1609,7 +1568,7 @@ class Domain(Boundary):
         return sum(int(b.num_components) for b, _ in self.components)  # type: ignore
 
     def sign(self, x: npt.ArrayLike) -> Float:
-        x = _as_points(x, dim=self.gdim)
+        x = as_points(x, dim=self.gdim)
         s = self.container.sign(x) if self.container is not None else np.full(len(x), -1.0)
         for b in self.bodies:
             m = np.flatnonzero(s < 0)
@@ -1662,18 +1621,18 @@ class Domain(Boundary):
         For points ``y (n, gdim)`` on Gamma (e.g. closest points, or the vertices of the
         conforming mesh on Gamma) it is the component they lie on.
         """
-        return self._closest(_as_points(y, dim=self.gdim))[0]
+        return self._closest(as_points(y, dim=self.gdim))[0]
 
     def closest_point(self, x: npt.ArrayLike) -> Float:
-        return self._closest(_as_points(x, dim=self.gdim))[1]
+        return self._closest(as_points(x, dim=self.gdim))[1]
 
     def project(self, x: npt.ArrayLike) -> tuple[Float, Float]:
-        x = _as_points(x, dim=self.gdim)
+        x = as_points(x, dim=self.gdim)
         _, y, d, _ = self._closest(x)
         return self.sign(x) * d, y
 
     def project_normal(self, x: npt.ArrayLike) -> tuple[Float, Float, Float]:
-        x = _as_points(x, dim=self.gdim)
+        x = as_points(x, dim=self.gdim)
         if not _native(self, Domain, "project", "closest_point", "normal"):
             return Boundary.project_normal(self, x)
         _, y, d, n = self._closest(x, normals=True)
@@ -1684,10 +1643,10 @@ class Domain(Boundary):
         return y, n  # type: ignore[return-value]
 
     def normal(self, y: npt.ArrayLike) -> Float:
-        return self._closest(_as_points(y, dim=self.gdim), normals=True)[3]  # type: ignore
+        return self._closest(as_points(y, dim=self.gdim), normals=True)[3]  # type: ignore
 
     def near(self, x: npt.ArrayLike, distance: float | npt.ArrayLike) -> Bool:
-        x = _as_points(x, dim=self.gdim)
+        x = as_points(x, dim=self.gdim)
         out = np.zeros(len(x), dtype=bool)
         for b, _ in self.components:
             out |= b.near(x, distance)

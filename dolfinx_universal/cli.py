@@ -18,6 +18,8 @@ from mpi4py import MPI
 import numpy as np
 import numpy.typing as npt
 
+from ._geometry import Float
+
 if TYPE_CHECKING:
     from dolfinx import mesh as dmesh
 
@@ -37,8 +39,6 @@ __all__ = [
 ]
 
 PROG = "dolfinx-universal"
-
-Float = npt.NDArray[np.float64]
 
 
 class ArgumentError(ValueError):

@@ -41,13 +41,12 @@ import ufl
 from dolfinx import fem, la
 from dolfinx.fem import petsc as fem_petsc
 
-from ._geometry import rot90
+from ._geometry import Float, rot90
 from .conform import IMMERSED
 from .curved import CurvedMesh, boundary_dof_data
 
 __all__ = ["ConstrainedNodes", "SlipConstraint", "facet_frames"]
 
-Float = npt.NDArray[np.float64]
 Value = float | Callable[[Float], npt.ArrayLike]
 
 DEFAULT_PETSC_OPTIONS = {

@@ -20,6 +20,7 @@ from dolfinx import fem
 from dolfinx import mesh as dmesh
 
 from . import _curved_tet
+from ._geometry import Bool, Float
 from .classify import positively_cut
 from .conform import IMMERSED, ConformingMesh
 from .dimensions import cell_kernels
@@ -37,8 +38,6 @@ __all__ = [
     "transfinite_map",
 ]
 
-Float = npt.NDArray[np.float64]
-Bool = npt.NDArray[np.bool_]
 
 MAPS = ("I", "I~", "G", "G~")
 """Map names. ``"I"``/``"G"`` interpolate the exactly conforming blend ``G_h``; ``"I~"``/``"G~"``

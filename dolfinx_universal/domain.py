@@ -14,6 +14,7 @@ import numpy as np
 import numpy.typing as npt
 from dolfinx import mesh as dmesh
 
+from ._geometry import Float
 from .background import GRADATION
 from .boundaries import Boundary, Domain
 from .conform import IMMERSED, ConformingMesh, conform
@@ -34,7 +35,6 @@ __all__ = [
     "mesh_domain",
 ]
 
-Float = npt.NDArray[np.float64]
 
 OUTER_BAND = 2.0
 """Half-width (in sizes) of the uniform band of the graded tetrahedral background on the

@@ -68,6 +68,7 @@ import numpy.typing as npt
 from dolfinx import mesh as dmesh
 from scipy.spatial import cKDTree
 
+from ._geometry import Float, Int
 from .background import create_mesh, layout_partitioner
 
 __all__ = [
@@ -77,8 +78,6 @@ __all__ = [
     "graded_tetrahedralisation",
 ]
 
-Float = npt.NDArray[np.float64]
-Int = npt.NDArray[np.int64]
 SizeLike = float | Callable[[Float], npt.ArrayLike]
 
 DIHEDRAL_RANGE: tuple[float, float] = (45.0, 120.0)

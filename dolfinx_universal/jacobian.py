@@ -8,10 +8,9 @@ from math import factorial
 
 import basix
 import numpy as np
-import numpy.typing as npt
 
 from . import _bernstein_tet as _tet
-from ._geometry import readonly
+from ._geometry import Float, Int, readonly
 
 __all__ = [
     "bernstein_basis",
@@ -21,8 +20,6 @@ __all__ = [
     "jacobian_determinant",
 ]
 
-Float = npt.NDArray[np.float64]
-Int = npt.NDArray[np.int64]
 
 # Midpoint subdivision of the reference triangle: the vertices of the four children.
 _P0, _P1, _P2 = (0.0, 0.0), (1.0, 0.0), (0.0, 1.0)

@@ -14,8 +14,8 @@ import numpy.typing as npt
 from scipy import ndimage
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
-from ._geometry import readonly
-from .boundaries import Boundary, _as_points, _cross, _norm, _positive
+from ._geometry import Bool, Float, Int, as_points, cross2, norm2, positive, readonly
+from .boundaries import Boundary
 
 __all__ = [
     "FEATURE_DIVISOR",
@@ -33,9 +33,6 @@ __all__ = [
     "threshold",
 ]
 
-Float = npt.NDArray[np.float64]
-Int = npt.NDArray[np.intp]
-Bool = npt.NDArray[np.bool_]
 
 FEATURE_DIVISOR: dict[int, float] = {1: 3.0, 2: 3.0, 3: 4.0}
 """Default ratio ``c(degree)`` of the local feature size to the target mesh size near Gamma,
@@ -62,7 +59,7 @@ _GRID_CELLS = 256  # cells of the distance lower-bound grids of a size field (lo
 def _points(x: npt.ArrayLike, name: str) -> Float:
     """``x`` as a finite float64 array ``(n, 2)``; a flat empty array is ``(0, 2)``."""
     a = np.asarray(x, dtype=np.float64)
-    return _as_points(a.reshape(0, 2) if a.ndim == 1 and a.size == 0 else a, name)
+    return as_points(a.reshape(0, 2) if a.ndim == 1 and a.size == 0 else a, name)
 
 
 def _at(p: Float) -> str:
@@ -135,7 +132,7 @@ def curve_samples(boundary: Boundary, spacing: float) -> CurveSamples:
         Bad ``spacing``, no curve, or normals that do not point to one side of a curve
         (overlapping components, a curve crossing itself).
     """
-    spacing = _positive(spacing, "spacing")
+    spacing = positive(spacing, "spacing")
     raw, raw_normals = boundary._loops_normals(spacing)
     keep = [k for k, q in enumerate(raw) if len(q) >= 3]
     loops = [np.asarray(raw[k], dtype=np.float64)[:, :2] for k in keep]
@@ -152,9 +149,9 @@ def curve_samples(boundary: Boundary, spacing: float) -> CurveSamples:
     prev, nxt = _next(offsets)
     # Orientation of each loop (shoelace about its mean, for accuracy) and the side of -n.
     centred = pts - (np.add.reduceat(pts, offsets[:-1]) / lengths[:, None])[labels]
-    area = 0.5 * np.bincount(labels, _cross(centred, centred[nxt]), minlength=ncurves)
+    area = 0.5 * np.bincount(labels, cross2(centred, centred[nxt]), minlength=ncurves)
     tangent = pts[nxt] - pts[prev]
-    left = _cross(normals, tangent) / np.maximum(_norm(tangent), np.finfo(np.float64).tiny)
+    left = cross2(normals, tangent) / np.maximum(norm2(tangent), np.finfo(np.float64).tiny)
     vote = np.bincount(labels, left, minlength=ncurves) / lengths
     bad = np.flatnonzero((np.abs(vote) < 0.5) | (area == 0))
     if bad.size:
@@ -165,7 +162,7 @@ def curve_samples(boundary: Boundary, spacing: float) -> CurveSamples:
         )
     encloses = (vote > 0) == (area > 0)
     lo, hi = np.asarray(boundary.bounding_box(), dtype=np.float64)
-    far = hi + max(float(_norm(hi - lo)), 1.0)
+    far = hi + max(float(norm2(hi - lo)), 1.0)
     far_inside = bool(boundary.sign(far[None, :])[0] < 0)
     return CurveSamples(
         points=readonly(pts),
@@ -175,7 +172,7 @@ def curve_samples(boundary: Boundary, spacing: float) -> CurveSamples:
         num_curves=ncurves,
         encloses_domain=readonly(encloses),
         expected_pieces=int(encloses.sum()) + int(far_inside),
-        spacing=float(_norm(pts[nxt] - pts).max()),
+        spacing=float(norm2(pts[nxt] - pts).max()),
     )
 
 
@@ -205,7 +202,7 @@ def _triangulate(samples: CurveSamples) -> _Triangulation:
     x = pts - 0.5 * (pts.min(axis=0) + pts.max(axis=0))
     nxt = np.arange(1, len(x) + 1)
     nxt[samples.offsets[1:] - 1] = samples.offsets[:-1]
-    scale = float(np.median(_norm(x[nxt] - x)))
+    scale = float(np.median(norm2(x[nxt] - x)))
     rng = np.random.default_rng(20140301)
     xj = x + rng.uniform(-_JITTER, _JITTER, x.shape) * scale
     try:  # without Qz (the point at infinity): 10 times faster on curves
@@ -244,7 +241,7 @@ def _radii(samples: CurveSamples, tri: _Triangulation, r_max: float | None) -> t
     """Tangent-disc radii from the Delaunay neighbours and the neighbours along the curve."""
     x, n = tri.x, samples.normals
     if r_max is None:
-        r_max = float(_norm(x.max(axis=0) - x.min(axis=0)))
+        r_max = float(norm2(x.max(axis=0) - x.min(axis=0)))
     deg = np.diff(tri.indptr)
     has, starts = deg > 0, tri.indptr[:-1][deg > 0]
     g_in, g_out = _side_minima(x, n, np.repeat(np.arange(len(x)), deg), tri.nbr)
@@ -316,11 +313,11 @@ def _separation(samples: CurveSamples, tri: _Triangulation) -> tuple[float, Floa
     keep = i < j
     i, j = i[keep], j[keep]
     lab = samples.labels
-    chord = _norm(tri.x[j] - tri.x[i])
+    chord = norm2(tri.x[j] - tri.x[i])
     off = samples.offsets
-    step = _norm(np.roll(tri.x, -1, axis=0) - tri.x)
+    step = norm2(np.roll(tri.x, -1, axis=0) - tri.x)
     last = off[1:] - 1
-    step[last] = _norm(tri.x[off[:-1]] - tri.x[last])  # closing edge of each curve
+    step[last] = norm2(tri.x[off[:-1]] - tri.x[last])  # closing edge of each curve
     cum = np.cumsum(step) - step  # arc length from the start of the sample's curve
     cum -= np.repeat(cum[off[:-1]], np.diff(off))
     length = np.add.reduceat(step, off[:-1])
@@ -370,10 +367,10 @@ def feature_size(
         crossing itself, or a neck or gap too thin for the budget.
     """
     lo, hi = np.asarray(boundary.bounding_box(), dtype=np.float64)
-    diagonal = float(_norm(hi - lo))
+    diagonal = float(norm2(hi - lo))
     finest = 1.25 * float(boundary._length()) / int(max_samples)
     s = (
-        _positive(spacing, "spacing")
+        positive(spacing, "spacing")
         if spacing is not None
         else max(diagonal / _INITIAL_CELLS, finest)
     )
@@ -434,11 +431,11 @@ def target_sizes(
     -------
     ``(n,)`` target sizes.
     """
-    c = feature_divisor(degree) if factor is None else _positive(factor, "factor")
+    c = feature_divisor(degree) if factor is None else positive(factor, "factor")
     f = np.asarray(feature, dtype=np.float64).reshape(-1)
     if not (f > 0).all():
         raise ValueError("feature sizes must be positive")
-    return np.minimum(_positive(h_max, "h_max"), f / c)
+    return np.minimum(positive(h_max, "h_max"), f / c)
 
 
 # ----------------------------------------------------------------------------- size fields
@@ -610,7 +607,7 @@ class SizeField:
         *,
         ratio: float = 1.1,
     ) -> None:
-        self.h_max = _positive(h_max, "h_max")
+        self.h_max = positive(h_max, "h_max")
         self.ratio = float(ratio)
         if not (np.isfinite(self.ratio) and self.ratio > 1):
             raise ValueError(f"ratio must be a finite number > 1, got {ratio!r}")
@@ -626,7 +623,7 @@ class SizeField:
             raise ValueError(f"sizes must have shape ({len(p)},), got {s.shape}")
         if not (np.isfinite(s).all() and (s > 0).all()):
             raise ValueError("sizes must be positive and finite")
-        return _Sources(readonly(p), readonly(s), _positive(gradation, "gradation"))
+        return _Sources(readonly(p), readonly(s), positive(gradation, "gradation"))
 
     @classmethod
     def _of(cls, groups: Sequence[_Sources], h_max: float, ratio: float) -> SizeField:
@@ -734,8 +731,8 @@ class _Ramp:
     """``size_min`` up to ``dist_min``, linear to ``size_max`` at ``dist_max``, then flat."""
 
     def __init__(self, size_min: float, size_max: float, dist_min: float, dist_max: float):
-        self.size_min = _positive(size_min, "size_min")
-        self.size_max = _positive(size_max, "size_max")
+        self.size_min = positive(size_min, "size_min")
+        self.size_max = positive(size_max, "size_max")
         self.dist_min, self.dist_max = float(dist_min), float(dist_max)
         if not (np.isfinite(self.dist_min) and self.dist_min >= 0):
             raise ValueError(f"dist_min must be a finite number >= 0, got {dist_min}")
@@ -954,7 +951,7 @@ def refine_size(
     if gdim == 2:
         field = SizeField(points, sizes, h_max, gradation)
     else:
-        field = _GradedSources(points, sizes, h_max, _positive(gradation, "gradation"))
+        field = _GradedSources(points, sizes, h_max, positive(gradation, "gradation"))
     field = _Unbounded(field, h_max)
     return field if size_field is None else _MinSize(size_field, field)
 

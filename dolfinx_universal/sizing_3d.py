@@ -33,11 +33,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-import numpy.typing as npt
 from scipy.spatial import cKDTree
 
-from ._geometry import readonly
-from .boundaries import Boundary, Domain, RigidMotion, _positive
+from ._geometry import Float, Int, positive, readonly
+from .boundaries import Boundary, Domain, RigidMotion
 
 __all__ = [
     "SurfaceFeature",
@@ -48,8 +47,6 @@ __all__ = [
     "surface_samples",
 ]
 
-Float = npt.NDArray[np.float64]
-Int = npt.NDArray[np.intp]
 
 MAX_ITERATIONS = 60
 """Most shrinking steps of a ball (they stop after 3-20 steps on smooth samples)."""
@@ -138,7 +135,7 @@ def surface_samples(boundary: Boundary, spacing: float) -> tuple[Float, Float, I
     labels
         Component index of each sample ``(n,)``.
     """
-    spacing = _positive(spacing, "spacing")
+    spacing = positive(spacing, "spacing")
     if int(getattr(boundary, "gdim", 2)) != 3:
         raise ValueError("surface_samples needs a surface (gdim = 3); use sizing.feature_size")
     parts, labels = [], []

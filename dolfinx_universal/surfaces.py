@@ -29,13 +29,13 @@ import numpy.typing as npt
 from scipy.spatial import cKDTree
 from scipy.special import elliprg
 
+from ._geometry import as_points, positive
 from .boundaries import (
     _EPS,
     Bool,
     Boundary,
     Float,
     Int,
-    _as_points,
     _best,
     _bracketed_newton,
     _call,
@@ -43,7 +43,6 @@ from .boundaries import (
     _Grid,
     _native,
     _normd,
-    _positive,
     _rotation_matrix,
     _split,
     _tangent_basis,
@@ -61,7 +60,7 @@ _GOLDEN = np.pi * (3.0 - np.sqrt(5.0))
 # ----------------------------------------------------------------------------- helpers
 def _points(x: npt.ArrayLike, name: str = "x") -> Float:
     """``x`` as a contiguous float64 array ``(n, 3)``, checked finite."""
-    return _as_points(x, name, dim=3)
+    return as_points(x, name, dim=3)
 
 
 def _unit(v: Float) -> Float:
@@ -224,7 +223,7 @@ class Sphere(Surface):
 
     def __init__(self, center: npt.ArrayLike, radius: float) -> None:
         self.center = _vector(center, "center", 3)
-        self.radius = _positive(radius, "radius")
+        self.radius = positive(radius, "radius")
 
     def sign(self, x: npt.ArrayLike) -> Float:
         d = _points(x) - self.center
@@ -462,7 +461,7 @@ class Torus(Surface):
         axis: npt.ArrayLike = (0.0, 0.0, 1.0),
     ) -> None:
         self.center = _vector(center, "center", 3)
-        self.major, self.minor = _positive(major, "major"), _positive(minor, "minor")
+        self.major, self.minor = positive(major, "major"), positive(minor, "minor")
         if not self.minor < self.major:
             raise ValueError(f"a ring torus needs minor < major, got {minor} >= {major}")
         k = _vector(axis, "axis", 3)
@@ -643,7 +642,7 @@ class ImplicitSurface(Surface):
         self._rmin = (
             None
             if min_radius_of_curvature is None
-            else _positive(min_radius_of_curvature, "min_radius_of_curvature")
+            else positive(min_radius_of_curvature, "min_radius_of_curvature")
         )
         self.resolution = int(resolution)
         self._scale = float(_normd(box[1] - box[0]))
