@@ -13,10 +13,9 @@ from __future__ import annotations
 from functools import lru_cache
 from math import factorial
 
-import basix
 import numpy as np
 
-from ._geometry import Float, Int, readonly
+from ._geometry import Float, Int, lagrange_element, readonly
 
 __all__ = [
     "CHILDREN",
@@ -25,7 +24,6 @@ __all__ = [
     "control_points",
     "determinant",
     "inverse_collocation",
-    "lagrange",
     "lattice_derivatives",
     "subdivision",
 ]
@@ -47,14 +45,6 @@ CHILDREN = np.array(
 )
 """Red refinement of the reference tetrahedron: vertices of the eight children ``(8, 4, 3)``,
 each of volume 1/48."""
-
-
-@lru_cache(maxsize=16)
-def lagrange(degree: int) -> basix.finite_element.FiniteElement:
-    """The degree-q GLL-warped Lagrange tetrahedron of DOLFINx's curved coordinate maps."""
-    return basix.create_element(
-        basix.ElementFamily.P, basix.CellType.tetrahedron, degree, basix.LagrangeVariant.gll_warped
-    )
 
 
 @lru_cache(maxsize=16)
@@ -182,7 +172,9 @@ def lattice_derivatives(degree: int) -> Float:
     """Reference derivatives of the degree-q Lagrange basis at the degree-3(q-1) control
     points, ``(3, nb, ndofs)``."""
     pts = control_points(3 * (degree - 1))
-    return readonly(np.ascontiguousarray(lagrange(degree).tabulate(1, pts)[1:, :, :, 0]))
+    return readonly(
+        np.ascontiguousarray(lagrange_element("tetrahedron", degree).tabulate(1, pts)[1:, :, :, 0])
+    )
 
 
 _CHUNK = 512

@@ -42,8 +42,7 @@ import numpy as np
 import numpy.typing as npt
 from dolfinx import la
 
-from ._bernstein_tet import lagrange
-from ._geometry import Float, Int
+from ._geometry import Float, Int, lagrange_element
 
 __all__ = ["LOCAL_EDGES", "gamma_entities", "map_nodes", "reference_nodes"]
 
@@ -64,7 +63,7 @@ def reference_nodes(degree: int) -> Float:
     (vertices, edges 0-5, faces 0-3, interior). Coordinates within ``1e-13`` of 0 are 0
     (read-only).
     """
-    p = lagrange(degree).points
+    p = lagrange_element("tetrahedron", degree).points
     lam = np.column_stack([1.0 - p.sum(axis=1), p])
     lam[np.abs(lam) < _ZERO] = 0.0
     lam.setflags(write=False)

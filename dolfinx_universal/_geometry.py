@@ -7,6 +7,7 @@ x and y are read) and triangles ``cells`` ``(m, 3)`` of vertex indices.
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Any
 
 import numpy as np
@@ -21,6 +22,7 @@ __all__ = [
     "cross2",
     "edge_lengths",
     "interior_angles",
+    "lagrange_element",
     "norm2",
     "positive",
     "signed_areas",
@@ -73,6 +75,18 @@ def norm2(v: Float) -> Float:
 def cross2(u: Float, v: Float) -> Float:
     """The planar cross product ``u_x v_y - u_y v_x`` of vectors ``(..., 2)``."""
     return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+
+
+@lru_cache(maxsize=32)
+def lagrange_element(cell: str, degree: int, variant: Any = None) -> Any:
+    """The basix Lagrange element of ``cell`` (``"triangle"``, ``"tetrahedron"``) of degree
+    ``degree``: GLL-warped (the variant of DOLFINx's curved coordinate maps) unless another
+    ``basix.LagrangeVariant`` is given. Built once per argument set."""
+    import basix
+
+    if variant is None:
+        variant = basix.LagrangeVariant.gll_warped
+    return basix.create_element(basix.ElementFamily.P, basix.CellType[cell], int(degree), variant)
 
 
 def readonly(a: npt.NDArray) -> npt.NDArray:

@@ -9,7 +9,6 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import lru_cache
 
 from mpi4py import MPI
 
@@ -20,7 +19,7 @@ from dolfinx import fem
 from dolfinx import mesh as dmesh
 
 from . import _curved_tet
-from ._geometry import Bool, Float
+from ._geometry import Bool, Float, lagrange_element
 from .classify import positively_cut
 from .conform import IMMERSED, ConformingMesh
 from .dimensions import cell_kernels
@@ -47,20 +46,13 @@ the superparametric approximation of ``G_h``; with equal degrees it is ``I_h``. 
 tetrahedra alike (the tetrahedron blend: :mod:`dolfinx_universal._curved_tet`)."""
 
 
-@lru_cache(maxsize=16)
-def _element(degree: int) -> basix.finite_element.FiniteElement:
-    return basix.create_element(
-        basix.ElementFamily.P, basix.CellType.triangle, degree, basix.LagrangeVariant.gll_warped
-    )
-
-
 def reference_nodes(degree: int) -> Float:
     """Barycentric coordinates of the degree-k GLL-warped Lagrange nodes, ``(ndofs, 3)``.
 
     Column ``i`` is the coordinate of local vertex ``i``; rows follow DOLFINx's node order
     (vertices, edges 0-2, interior).
     """
-    p = _element(degree).points
+    p = lagrange_element("triangle", degree).points
     return np.column_stack([1.0 - p.sum(axis=1), p])
 
 

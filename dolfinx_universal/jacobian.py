@@ -6,11 +6,10 @@ from __future__ import annotations
 from functools import lru_cache
 from math import factorial
 
-import basix
 import numpy as np
 
 from . import _bernstein_tet as _tet
-from ._geometry import Float, Int, readonly
+from ._geometry import Float, Int, lagrange_element, readonly
 
 __all__ = [
     "bernstein_basis",
@@ -25,14 +24,6 @@ __all__ = [
 _P0, _P1, _P2 = (0.0, 0.0), (1.0, 0.0), (0.0, 1.0)
 _M01, _M12, _M02 = (0.5, 0.0), (0.5, 0.5), (0.0, 0.5)
 _CHILDREN = np.array([[_P0, _M01, _M02], [_M01, _P1, _M12], [_M02, _M12, _P2], [_M12, _M02, _M01]])
-
-
-@lru_cache(maxsize=16)
-def _lagrange(degree: int) -> basix.finite_element.FiniteElement:
-    """The degree-q GLL-warped Lagrange element of DOLFINx's curved coordinate maps."""
-    return basix.create_element(
-        basix.ElementFamily.P, basix.CellType.triangle, degree, basix.LagrangeVariant.gll_warped
-    )
 
 
 @lru_cache(maxsize=16)
@@ -132,7 +123,9 @@ def _lattice_derivatives(degree: int) -> Float:
     """Reference derivatives of the degree-q Lagrange basis at the degree-2(q-1) control
     points, ``(2, nb, ndofs)``."""
     pts = _control_points(2 * (degree - 1))
-    return readonly(np.ascontiguousarray(_lagrange(degree).tabulate(1, pts)[1:, :, :, 0]))
+    return readonly(
+        np.ascontiguousarray(lagrange_element("triangle", degree).tabulate(1, pts)[1:, :, :, 0])
+    )
 
 
 def _determinant(nodes: Float, dphi: Float) -> Float:
@@ -159,7 +152,9 @@ def jacobian_determinant(nodes: Float, degree: int, points: Float) -> Float:
     -------
     ``det J``, ``(m, p)``.
     """
-    dphi = _lagrange(degree).tabulate(1, np.asarray(points, dtype=np.float64))[1:, :, :, 0]
+    dphi = lagrange_element("triangle", degree).tabulate(1, np.asarray(points, dtype=np.float64))[
+        1:, :, :, 0
+    ]
     return _determinant(np.asarray(nodes, dtype=np.float64), dphi)
 
 

@@ -21,6 +21,7 @@ import numpy as np
 import numpy.typing as npt
 
 from . import _tetrahedron
+from ._geometry import lagrange_element
 
 if TYPE_CHECKING:
     from dolfinx import fem
@@ -117,7 +118,7 @@ def _coordinate_element(k: int, variant: Any = None) -> Any:
         variant = basix.LagrangeVariant(int(variant))
     if variant == basix.LagrangeVariant.unset:
         variant = basix.LagrangeVariant.gll_warped
-    return basix.create_element(basix.ElementFamily.P, basix.CellType.triangle, k, variant)
+    return lagrange_element("triangle", k, variant)
 
 
 def _map(nodes: npt.NDArray, k: int, variant: Any, ref: npt.NDArray) -> npt.NDArray:

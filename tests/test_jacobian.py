@@ -7,6 +7,7 @@ import pytest
 
 from dolfinx_universal import _bernstein_tet as _tet
 from dolfinx_universal._curved_tet import reference_nodes as tet_reference_nodes_lam
+from dolfinx_universal._geometry import lagrange_element
 from dolfinx_universal.curved import jacobian_ratio, reference_nodes
 from dolfinx_universal.jacobian import (
     _subdivision,
@@ -217,7 +218,9 @@ def tet_lattice(n: int) -> np.ndarray:
 
 
 def tet_sampled_min(nodes: np.ndarray, degree: int, n: int) -> np.ndarray:
-    det = _tet.determinant(nodes, _tet.lagrange(degree).tabulate(1, tet_lattice(n))[1:, :, :, 0])
+    det = _tet.determinant(
+        nodes, lagrange_element("tetrahedron", degree).tabulate(1, tet_lattice(n))[1:, :, :, 0]
+    )
     return (det / _tet.affine_determinant(nodes)[:, None]).min(axis=1)
 
 
@@ -240,7 +243,9 @@ def test_tet_bernstein_coefficients_reproduce_det(degree):
     c = det @ _tet.inverse_collocation(order).T
     assert c.shape == (30, (order + 1) * (order + 2) * (order + 3) // 6)
     pts = random_tet_points(rng, 100)
-    exact = _tet.determinant(nodes, _tet.lagrange(degree).tabulate(1, pts)[1:, :, :, 0])
+    exact = _tet.determinant(
+        nodes, lagrange_element("tetrahedron", degree).tabulate(1, pts)[1:, :, :, 0]
+    )
     # collocation matrices of condition 7, 92, 1521 (orders 3, 6, 9): rounding ~1e-13
     assert (
         np.abs(c @ _tet.bernstein_basis(order, pts).T - exact).max() < 1e-11 * np.abs(exact).max()
