@@ -508,15 +508,17 @@ class Boundary(abc.ABC):
         phi, y = self.project(x)
         return phi, y, self.normal(y)
 
-    def _closest_normal(self, x: Float) -> tuple[Float, Float]:
-        """Closest points ``(n, 2)`` and the outward normals there ``(n, 2)``."""
+    def closest_normal(self, x: Float) -> tuple[Float, Float]:
+        """Closest points ``(n, gdim)`` of points ``x (n, gdim)`` and the unit outward normals
+        there ``(n, gdim)``, in one call: the projection the conforming step and the
+        relaxation use (subclasses compute both at once where that is cheaper)."""
         y = self.closest_point(x)
         return y, self.normal(y)
 
     def _sign_closest_normal(self, x: Float) -> tuple[Float, Float, Float]:
         """:meth:`project_normal` as :meth:`Boundary.project` computes ``phi`` (the sign and
-        the distance to the closest point), with the normals of :meth:`_closest_normal`."""
-        y, n = self._closest_normal(x)
+        the distance to the closest point), with the normals of :meth:`closest_normal`."""
+        y, n = self.closest_normal(x)
         return self.sign(x) * _normd(x - y), y, n
 
     def near(self, x: npt.ArrayLike, distance: float | npt.ArrayLike) -> Bool:
@@ -622,9 +624,9 @@ class Circle(Boundary):
     def normal(self, y: npt.ArrayLike) -> Float:
         return self._direction(y)
 
-    def _closest_normal(self, x: Float) -> tuple[Float, Float]:
+    def closest_normal(self, x: Float) -> tuple[Float, Float]:
         if not _native(self, Circle, "closest_point", "normal"):
-            return Boundary._closest_normal(self, x)
+            return Boundary.closest_normal(self, x)
         u = self._direction(x)
         return self.center + self.radius * u, u
 
@@ -1016,9 +1018,9 @@ class ParametricCurve(Boundary):
         s[m] = self._exact_sign(x[m], t[m], y[m])
         return s * norm2(x - y), y, self._outward(t)
 
-    def _closest_normal(self, x: Float) -> tuple[Float, Float]:
+    def closest_normal(self, x: Float) -> tuple[Float, Float]:
         if not _native(self, ParametricCurve, "closest_point", "normal"):
-            return Boundary._closest_normal(self, x)
+            return Boundary.closest_normal(self, x)
         t, y = self._project(x)
         return y, self._outward(t)
 
@@ -1441,10 +1443,10 @@ class RigidMotion(Boundary):
         phi, y, n = self.base.project_normal(self._to_base(x))
         return phi, self._from_base(y), self._turn(n)
 
-    def _closest_normal(self, x: Float) -> tuple[Float, Float]:
+    def closest_normal(self, x: Float) -> tuple[Float, Float]:
         if not _native(self, RigidMotion, "closest_point", "normal"):
-            return Boundary._closest_normal(self, x)
-        y, n = self.base._closest_normal(self._to_base(x))
+            return Boundary.closest_normal(self, x)
+        y, n = self.base.closest_normal(self._to_base(x))
         return self._from_base(y), self._turn(n)
 
     def normal(self, y: npt.ArrayLike) -> Float:
@@ -1589,7 +1591,7 @@ class Domain(Boundary):
         if len(comps) == 1:  # no lower bounds needed
             b, body = comps[0]
             if normals:
-                y, n = b._closest_normal(x)
+                y, n = b.closest_normal(x)
                 return np.zeros(len(x), dtype=np.intp), y, _normd(x - y), -n if body else n
             y = b.closest_point(x)
             return np.zeros(len(x), dtype=np.intp), y, _normd(x - y), None
@@ -1602,7 +1604,7 @@ class Domain(Boundary):
                 m = np.flatnonzero((first == k) if rnd == 0 else (lb[k] < d) & (first != k))
                 if m.size:
                     if normals:
-                        yk, nk = b._closest_normal(x[m])
+                        yk, nk = b.closest_normal(x[m])
                     else:
                         yk = b.closest_point(x[m])
                     dk = _normd(x[m] - yk)
@@ -1638,7 +1640,7 @@ class Domain(Boundary):
         _, y, d, n = self._closest(x, normals=True)
         return self.sign(x) * d, y, n  # type: ignore[return-value]
 
-    def _closest_normal(self, x: Float) -> tuple[Float, Float]:
+    def closest_normal(self, x: Float) -> tuple[Float, Float]:
         _, y, _, n = self._closest(x, normals=True)
         return y, n  # type: ignore[return-value]
 

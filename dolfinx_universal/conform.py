@@ -485,7 +485,7 @@ class UniversalMesh:
             t_relax = time.perf_counter()
             movable = movable_vertices(imv, s, band, pe.on_gamma, pe.in_kept, outer)
             y, xp, moved = relax_vertices(
-                comm, imv, boundary._closest_normal, x, xp, y, pe.near_kept_cv, movable,
+                comm, imv, boundary.closest_normal, x, xp, y, pe.near_kept_cv, movable,
                 pe.on_gamma, normal, phi, self.h,
             )[:3]  # fmt: skip
             timings["relax"] = time.perf_counter() - t_relax
@@ -664,6 +664,34 @@ class UniversalMesh:
         except MeshingError as e:
             if self.comm.rank == 0:
                 warnings.warn(str(e), UserWarning, stacklevel=4)
+
+    @property
+    def vertex_coordinates(self) -> npt.NDArray[np.float64]:
+        """The background's vertex coordinates (owned, then ghost vertices)
+        ``(num_vertices, gdim)``, read-only."""
+        v = self._x.view()
+        v.flags.writeable = False
+        return v
+
+    @property
+    def cell_vertices(self) -> npt.NDArray[np.int32]:
+        """Vertices of the background's local cells (owned, then ghost)
+        ``(num_cells, tdim + 1)``, read-only."""
+        v = self._c2v.view()
+        v.flags.writeable = False
+        return v
+
+    @property
+    def cell_facets(self) -> Int:
+        """Facets of the background's local cells ``(num_cells, tdim + 1)`` (facet ``k``
+        opposite vertex ``k``; built at the first use, which is collective)."""
+        return self._c2f
+
+    def use_samples(self, boundary: Boundary, samples: CurveSamples) -> None:
+        """Take ``samples`` of ``boundary`` (from :func:`~dolfinx_universal.sizing.curve_samples`)
+        for the Gamma_h checks of the next :meth:`conform` of ``boundary``, where they are
+        spaced as finely as the checks ask (one sampling serves the sizing and the checks)."""
+        self._samples = (boundary, samples.spacing, samples)
 
     def conform(self, boundary: Boundary) -> ConformingMesh:
         """The straight conforming mesh of the domain bounded by ``boundary`` (collective).

@@ -125,8 +125,8 @@ class MovingDomain:
         self._dofmap = self.mesh.geometry.dofmaps[0]
         topo = self.mesh.topology
         self._nco = topo.index_map(tdim).size_local
-        self._c2v = self.universal._c2v
-        self._c2f = self.universal._c2f
+        self._c2v = self.universal.cell_vertices
+        self._c2f = self.universal.cell_facets
         self._dirty = np.zeros(len(self._c2v), dtype=bool)
         self._kept = np.zeros(len(self._c2v), dtype=bool)  # as the indicator: 0
         Q0 = fem.functionspace(self.mesh, ("DG", 0))
@@ -480,9 +480,8 @@ class MovingDomain:
         samples, target = collective_call(self.comm, "sizing the boundary", needs)
         pts = samples.points
         # One sampling for both: the feature samples serve the Gamma_h checks of this step
-        # when they are fine enough (UniversalMesh._curve_samples reuses samples spaced at
-        # most as it asks).
-        self.universal._samples = (boundary, samples.spacing, samples)
+        # when they are fine enough.
+        self.universal.use_samples(boundary, samples)
         outside = ~((pts > box[0]).all(axis=1) & (pts < box[1]).all(axis=1))
         coarse = target < field(pts) / COVERAGE_TOLERANCE
         bad = outside | coarse
@@ -508,7 +507,8 @@ class MovingDomain:
         near_kept = np.flatnonzero(kept & near[:nco])
         cv = c2v[near_kept]
         plain = ~sm.moved[cv].any(axis=1) & (sm.sign[cv] < 0).all(axis=1)
-        rep = cell_quality(self.comm, sm.y, self.universal._x, cv[~plain], sm.sign, sm.moved)
+        x = self.universal.vertex_coordinates
+        rep = cell_quality(self.comm, sm.y, x, cv[~plain], sm.sign, sm.moved)
         far = kept & ~near[:nco]
         far[near_kept[plain]] = True
         b = self._background_quality
@@ -545,7 +545,7 @@ class MovingDomain:
     @cached_property
     def _background_quality(self) -> dict[str, npt.NDArray[np.float64]]:
         """Per-cell quality of the owned background cells."""
-        x, cells = self.universal._x, self._c2v[: self._nco]
+        x, cells = self.universal.vertex_coordinates, self._c2v[: self._nco]
         if self.tdim == 2:
             ang = np.degrees(interior_angles(x, cells))
             return {

@@ -243,9 +243,9 @@ class Sphere(Surface):
     def normal(self, y: npt.ArrayLike) -> Float:
         return self._direction(y)
 
-    def _closest_normal(self, x: Float) -> tuple[Float, Float]:
+    def closest_normal(self, x: Float) -> tuple[Float, Float]:
         if not _native(self, Sphere, "closest_point", "normal"):
-            return Boundary._closest_normal(self, x)
+            return Boundary.closest_normal(self, x)
         u = self._direction(x)
         return self.center + self.radius * u, u
 
@@ -376,9 +376,9 @@ class Ellipsoid(Surface):
     def _local_normal(self, xs: Float) -> Float:
         return _unit(xs / self.semi_axes**2)
 
-    def _closest_normal(self, x: Float) -> tuple[Float, Float]:
+    def closest_normal(self, x: Float) -> tuple[Float, Float]:
         if not _native(self, Ellipsoid, "closest_point", "normal"):
-            return Boundary._closest_normal(self, x)
+            return Boundary.closest_normal(self, x)
         xs = self._solve(self._local(x))
         return self._world(xs), self._local_normal(xs) @ self.rotation.T
 
@@ -386,7 +386,7 @@ class Ellipsoid(Surface):
         return self._world(self._solve(self._local(x)))
 
     def normal(self, y: npt.ArrayLike) -> Float:
-        return self._closest_normal(_points(y))[1]
+        return self.closest_normal(_points(y))[1]
 
     def _radius(self, x: Float) -> tuple[Float, Float]:
         """Ellipsoidal radius ``g = |p / e|`` ``(n,)`` and ``|p|`` ``(n,)``."""
@@ -504,14 +504,14 @@ class Torus(Surface):
         _, z, _, rho = self._offsets(_points(x))
         return np.where((rho - self.major) ** 2 + z * z < self.minor**2, -1.0, 1.0)
 
-    def _closest_normal(self, x: Float) -> tuple[Float, Float]:
+    def closest_normal(self, x: Float) -> tuple[Float, Float]:
         if not _native(self, Torus, "closest_point", "normal"):
-            return Boundary._closest_normal(self, x)
+            return Boundary.closest_normal(self, x)
         c, n = self._direction(_points(x))
         return c + self.minor * n, n
 
     def closest_point(self, x: npt.ArrayLike) -> Float:
-        return self._closest_normal(_points(x))[0]
+        return self.closest_normal(_points(x))[0]
 
     def normal(self, y: npt.ArrayLike) -> Float:
         return self._direction(_points(y))[1]
@@ -911,9 +911,9 @@ class ImplicitSurface(Surface):
             )
         return out
 
-    def _closest_normal(self, x: Float) -> tuple[Float, Float]:
+    def closest_normal(self, x: Float) -> tuple[Float, Float]:
         if not _native(self, ImplicitSurface, "closest_point", "normal"):
-            return Boundary._closest_normal(self, x)
+            return Boundary.closest_normal(self, x)
         y = self.closest_point(x)
         return y, _unit(self._g(y))
 

@@ -166,7 +166,7 @@ def test_moving_stokes_concentric_spheres():
     torque = 8 * np.pi * a**3 / (1 - lam**3)
     C0 = np.zeros(3)  # at h = 0.25 (two cells across the sphere) C inverts a tetrahedron
     md = du.MovingDomain(du.a15_mesh(comm, [[-1.15] * 3, [1.15] * 3], 0.25), degree=2, map="I~")
-    x = md.universal._x
+    x = md.universal.vertex_coordinates
     owned = x[: md.universal._imv.size_local]
     r = np.abs(np.linalg.norm(owned, axis=1) - 0.75)
     best = comm.allreduce((float(r.min(initial=np.inf)), comm.rank), op=MPI.MINLOC)
