@@ -71,7 +71,7 @@ def reference_nodes(degree: int) -> Float:
 
 
 def gamma_entities(
-    msh: object, sign_on_gamma: npt.NDArray[np.bool_], immersed: Int, cells: Int | None = None
+    msh: object, on_gamma: npt.NDArray[np.bool_], immersed: Int, cells: Int | None = None
 ) -> tuple[npt.NDArray[np.int8], npt.NDArray[np.bool_]]:
     """Positive faces and edges of Gamma_h of local cells (owned and ghost). Collective.
 
@@ -79,7 +79,7 @@ def gamma_entities(
     ----------
     msh
         The straight conforming tetrahedral mesh.
-    sign_on_gamma
+    on_gamma
         Vertices on Gamma ``(num_vertices,)``.
     immersed
         Owned faces of Gamma_h (the immersed facet tags) ``(k,)``.
@@ -112,7 +112,7 @@ def gamma_entities(
     fv.scatter_forward()  # the owners' tags on the ghost faces
     on_face = fv.array[c2f] > 0  # (num_cells, 4)
     # a face of Gamma_h has its three vertices on Gamma (guards against a stale tag)
-    on_face &= np.stack([sign_on_gamma[np.delete(c2v, k, axis=1)].all(axis=1) for k in range(4)], 1)
+    on_face &= np.stack([on_gamma[np.delete(c2v, k, axis=1)].all(axis=1) for k in range(4)], 1)
     face = np.where(on_face.any(axis=1), np.argmax(on_face, axis=1), -1).astype(np.int8)
 
     has = np.flatnonzero(face >= 0)

@@ -199,7 +199,7 @@ def straight_map(
     phi: Float,
     closest: Float,
     normal: Float,
-    on_positive_edge: Bool,
+    on_gamma: Bool,
     h: Float,
     R_r: Float,
     alpha: float,
@@ -219,7 +219,7 @@ def straight_map(
     closest, normal
         Closest points ``pi(x)`` and outward normals there ``(n, gdim)``; only read where the
         vertex moves.
-    on_positive_edge
+    on_gamma
         Vertex flags ``(n,)``.
     h, R_r
         Mesh size and relaxation radius at each vertex ``(n,)``.
@@ -231,8 +231,8 @@ def straight_map(
     Images ``M_h(x)``, shape ``(n, gdim)``.
     """
     y = np.array(x, dtype=np.float64, copy=True)
-    relax = (~on_positive_edge) & (phi < 0) & (phi > -R_r)
+    relax = (~on_gamma) & (phi < 0) & (phi > -R_r)
     f = alpha * h[relax] * (1.0 + phi[relax] / R_r[relax])
     y[relax] -= f[:, None] * normal[relax]
-    y[on_positive_edge] = closest[on_positive_edge]
+    y[on_gamma] = closest[on_gamma]
     return y

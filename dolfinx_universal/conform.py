@@ -95,8 +95,8 @@ class ConformingMesh:
     background_x: npt.NDArray[np.float64]
     """Vertex positions in the (perturbed) background, ``(num_vertices, gdim)``; a vertex the
     relaxation slid along Gamma has one that projects onto its new image."""
-    on_positive_edge: npt.NDArray[np.bool_]
-    """Vertices snapped onto Gamma, ``(num_vertices,)``."""
+    on_gamma: npt.NDArray[np.bool_]
+    """Vertices snapped onto Gamma (of positive edges, or faces), ``(num_vertices,)``."""
     h: npt.NDArray[np.float64]
     """Mesh size used at each vertex, ``(num_vertices,)``."""
     R_r: npt.NDArray[np.float64]
@@ -138,11 +138,21 @@ class ConformingMesh:
             topo.create_connectivity(fdim, 0)
             facets = dmesh.exterior_facet_indices(topo)
             fv = topo.connectivity(fdim, 0).array.reshape(-1, topo.dim)[facets]
-            values = np.where(self.on_positive_edge[fv].all(axis=1), IMMERSED, OUTER)
+            values = np.where(self.on_gamma[fv].all(axis=1), IMMERSED, OUTER)
             self._facet_tags = dmesh.meshtags(
                 self.mesh, fdim, facets.astype(np.int32), values.astype(np.int32)
             )
         return self._facet_tags
+
+    @property
+    def on_positive_edge(self) -> npt.NDArray[np.bool_]:
+        """Deprecated name of :attr:`on_gamma` (a positive face's vertices in 3D)."""
+        warnings.warn(
+            "ConformingMesh.on_positive_edge is deprecated: use on_gamma",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return self.on_gamma
 
     @property
     def cells(self) -> npt.NDArray[np.int32]:
@@ -220,7 +230,7 @@ class StraightMap:
         Background positions after the eta perturbation, ``(num_vertices, gdim)``.
     y
         Their images ``M_h(x)``, ``(num_vertices, gdim)``.
-    on_positive_edge
+    on_gamma
         Vertices of positive edges (snapped onto Gamma), ``(num_vertices,)``.
     kept
         Cells of ``T_h^sub`` (owned and ghost cells), ``(num_cells,)``.
@@ -249,7 +259,7 @@ class StraightMap:
     closest: Float
     x: Float
     y: Float
-    on_positive_edge: Bool
+    on_gamma: Bool
     kept: Bool
     moved: Bool
     near_cells: npt.NDArray[np.int32]
@@ -492,7 +502,7 @@ class UniversalMesh:
         angle_range = self._check_quality(y, moved, pe.near_kept_cv, measures)
         timings["map"] = time.perf_counter() - t2
         return StraightMap(
-            sign=s, phi=phi, closest=closest, x=xp, y=y, on_positive_edge=pe.on_gamma,
+            sign=s, phi=phi, closest=closest, x=xp, y=y, on_gamma=pe.on_gamma,
             kept=pe.kept, moved=moved, near_cells=near_all.astype(np.int32),
             num_relocated=num_relocated, timings=timings,
             max_conditioning_angle=float(np.degrees(max_theta)), moved_angle_range=angle_range,
@@ -735,7 +745,7 @@ class UniversalMesh:
             node_map=np.asarray(node_map, dtype=np.int32),
             sign=sm.sign[vmap],
             background_x=sm.x[vmap],
-            on_positive_edge=sm.on_positive_edge[vmap],
+            on_gamma=sm.on_gamma[vmap],
             h=self.h[vmap],
             R_r=self.R_r[vmap],
             alpha=self.alpha,

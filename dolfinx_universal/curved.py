@@ -274,9 +274,7 @@ def _curved_cells(
             return map_nodes(cells, y, cm.background_x, cm.sign, degree, kind, closest)
 
         return pc, triangles
-    face, edges = _curved_tet.gamma_entities(
-        cm.mesh, cm.on_positive_edge, cm.facet_tags.find(IMMERSED)
-    )
+    face, edges = _curved_tet.gamma_entities(cm.mesh, cm.on_gamma, cm.facet_tags.find(IMMERSED))
     curved = np.flatnonzero(edges.any(axis=1))
 
     def tetrahedra(cells: npt.NDArray, y: Float) -> Float:

@@ -445,7 +445,7 @@ class MovingDomain:
         k = np.argmin(sm.sign[self._c2v[redo[cut]]], axis=1)
         faces = self._c2f[redo[cut], k]
         faces = np.unique(faces[faces < self.mesh.topology.index_map(2).size_local])
-        return _curved_tet.gamma_entities(self.mesh, sm.on_positive_edge, faces, redo)
+        return _curved_tet.gamma_entities(self.mesh, sm.on_gamma, faces, redo)
 
     def _sync_ghost_nodes(self, rows: npt.NDArray[np.int32], x: npt.NDArray[np.float64]) -> None:
         """Copy the owners' values of the rewritten nodes to their ghosts (collective).

@@ -119,7 +119,7 @@ def conform_outputs(background: dmesh.Mesh, boundary: du.Boundary, options: dict
         "sm_y": sm.y,
         "sm_kept": sm.kept,
         "sm_moved": sm.moved,
-        "sm_on_positive_edge": sm.on_positive_edge,
+        "sm_on_positive_edge": sm.on_gamma,
         "sm_near_cells": np.sort(sm.near_cells),
         "sm_num_relocated": np.array(sm.num_relocated),
         "cm_x": cm.mesh.geometry.x[:, :2].copy(),
@@ -127,7 +127,7 @@ def conform_outputs(background: dmesh.Mesh, boundary: du.Boundary, options: dict
         "cm_vertex_map": cm.vertex_map,
         "cm_sign": cm.sign,
         "cm_moved": cm.moved,
-        "cm_on_positive_edge": cm.on_positive_edge,
+        "cm_on_positive_edge": cm.on_gamma,
         "cm_tag_indices": cm.facet_tags.indices,
         "cm_tag_values": cm.facet_tags.values,
     }

@@ -273,3 +273,10 @@ def test_vertices_exactly_on_gamma(hole):
     circle = du.Circle(centre, 8 * h)
     cm = du.conform(bg, du.Domain(None, [circle]) if hole else circle, eta=0.0)
     assert du.quality_report(cm)["n_inverted"] == 0
+
+
+def test_on_positive_edge_is_a_deprecated_name_of_on_gamma():
+    bg = du.equilateral_mesh(MPI.COMM_SELF, [[-1, -1], [1, 1]], 0.2)
+    cm = du.conform(bg, du.Circle((0.01, 0.02), 0.6))
+    with pytest.warns(DeprecationWarning, match="on_gamma"):
+        assert cm.on_positive_edge is cm.on_gamma

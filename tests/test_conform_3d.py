@@ -131,7 +131,7 @@ def test_relaxation_off_keeps_the_snap():
     relaxed = du.conform(bg, sphere)
     assert relaxed.moved_angle_range[0] > plain.moved_angle_range[0] + 10.0
     # without relaxation only the vertices of positive faces moved (snapped or relocated)
-    assert np.array_equal(plain.moved, plain.on_positive_edge)
+    assert np.array_equal(plain.moved, plain.on_gamma)
 
 
 def test_thin_body_is_refused():

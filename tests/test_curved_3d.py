@@ -89,9 +89,7 @@ def test_which_cells_curve(conformed):
     cm = conformed("torus")
     surface = SURFACES["torus"][0]
     degree = 3
-    face, edges = _curved_tet.gamma_entities(
-        cm.mesh, cm.on_positive_edge, cm.facet_tags.find(du.IMMERSED)
-    )
+    face, edges = _curved_tet.gamma_entities(cm.mesh, cm.on_gamma, cm.facet_tags.find(du.IMMERSED))
     cells = cm.cells
     lam = _curved_tet.reference_nodes(degree)
     nodes = _per_cell(cm, degree, "G")
@@ -99,7 +97,7 @@ def test_which_cells_curve(conformed):
     curved = edges.any(axis=1)
     assert (face >= 0).sum() > 0 and (curved & (face < 0)).sum() > 0  # both kinds occur
     assert np.array_equal(nodes[~curved], affine[~curved])
-    assert (cm.on_positive_edge[cells[~curved]].sum(axis=1) <= 2).all()
+    assert (cm.on_gamma[cells[~curved]].sum(axis=1) <= 2).all()
     # Positive faces: pi of the straight background face point, computed here directly.
     xb = cm.background_x
     for d in range(4):
@@ -135,9 +133,7 @@ def test_maps_I_G_and_tilde(conformed):
     assert np.array_equal(g[:, :4], gt[:, :4])
     diff = np.abs(g - gt).max(axis=(1, 2))
     assert diff.max() > 1e-6  # the face points really differ
-    face, edges = _curved_tet.gamma_entities(
-        cm.mesh, cm.on_positive_edge, cm.facet_tags.find(du.IMMERSED)
-    )
+    face, edges = _curved_tet.gamma_entities(cm.mesh, cm.on_gamma, cm.facet_tags.find(du.IMMERSED))
     assert (diff[~edges.any(axis=1)] == 0).all()
     assert t.min_jacobian_ratio > 0.9  # the straight faces: nearly affine
 
