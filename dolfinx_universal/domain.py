@@ -483,15 +483,15 @@ def mesh_domain(
         raise ValueError(f"size_field must be a callable of points, got {size_field!r}")
     if int(max_rounds) != max_rounds or max_rounds < 0:
         raise ValueError(f"max_rounds must be a non-negative integer, got {max_rounds}")
+    if tet_background not in TET_BACKGROUNDS:
+        raise ValueError(
+            f"unknown tet_background {tet_background!r}: choose one of {TET_BACKGROUNDS}"
+        )
     degree = int(degree)
     timings = {"sizing": 0.0, "background": 0.0, "conform": 0.0, "curved": 0.0}
 
     t = time.perf_counter()
     plan: _Plan
-    if tet_background not in TET_BACKGROUNDS:
-        raise ValueError(
-            f"unknown tet_background {tet_background!r}: choose one of {TET_BACKGROUNDS}"
-        )
     if getattr(boundary, "gdim", 2) == 3:
         plan = _tet_plan(
             comm, boundary, h, degree, box, relaxation_factor, size_factor, tet_background,
@@ -503,36 +503,78 @@ def mesh_domain(
             plan.user = _UserSize(comm, size_field, plan.box)
     timings["sizing"] += time.perf_counter() - t
 
-    rounds: list[str] = []
-    fallback = None  # the octree's mesh while "auto" tries A15 for better angles
-    while True:
-        plan.check_size(max_cells, rounds)
+    def attempt(plan: _Plan, background: dmesh.Mesh) -> _Attempt:
+        """Conform, curve and rate the background of one round (raises MeshingError)."""
+        t = time.perf_counter()
+        cm = conform(
+            background,
+            boundary,
+            eta=eta,
+            relaxation_factor=relaxation_factor,
+            local_size=plan.local_size,
+            min_angle=min_angle,
+            on_low_quality="raise",
+            relax=relax,
+        )
+        timings["conform"] += time.perf_counter() - t
+        t = time.perf_counter()
+        curved = curved_mesh(cm, degree, map) if degree > 1 else None
+        timings["curved"] += time.perf_counter() - t
+        return _Attempt(plan, background, cm, curved, quality_report(cm))
+
+    def build(plan: _Plan) -> dmesh.Mesh:
         t = time.perf_counter()
         background = plan.background(comm)
         timings["background"] += time.perf_counter() - t
+        return background
+
+    done, rounds = _refinement_rounds(comm, plan, build, attempt, max_rounds, max_cells)
+    certificate = _certificate(comm, done, rounds, h, degree, map, min_angle)
+    timings["total"] = time.perf_counter() - t_start
+    timings = {k: comm.allreduce(v, op=MPI.MAX) for k, v in timings.items()}
+    msh = done.curved.mesh if done.curved is not None else done.cm.mesh
+    tags = done.curved.facet_tags if done.curved is not None else done.cm.facet_tags
+    return MeshedDomain(msh, tags, certificate, done.cm, done.curved, timings)
+
+
+@dataclass
+class _Attempt:
+    """One round of :func:`mesh_domain` that passed every check."""
+
+    plan: _Plan
+    background: dmesh.Mesh
+    cm: ConformingMesh
+    curved: CurvedMesh | None
+    quality: dict
+
+
+def _refinement_rounds(
+    comm: MPI.Comm,
+    plan: _Plan,
+    build: Callable[[_Plan], dmesh.Mesh],
+    attempt: Callable[[_Plan, dmesh.Mesh], _Attempt],
+    max_rounds: int,
+    max_cells: float,
+) -> tuple[_Attempt, list[str]]:
+    """The rounds of :func:`mesh_domain` (collective): build the plan's background and
+    ``attempt`` it; where a check fails, refine the plan around the places it names (at
+    most ``max_rounds`` times); where ``tet_background="auto"`` chose the octree and its
+    angles leave :data:`AUTO_DIHEDRAL`, try the A15 alternative (keeping the octree's mesh
+    if that fails). Returns the round that passed and the record of the rounds."""
+    rounds: list[str] = []
+    fallback: tuple[_Attempt, int] | None = None  # the octree's while "auto" tries A15
+    while True:
+        plan.check_size(max_cells, rounds)
+        background = build(plan)
         try:
-            t = time.perf_counter()
-            cm = conform(
-                background,
-                boundary,
-                eta=eta,
-                relaxation_factor=relaxation_factor,
-                local_size=plan.local_size,
-                min_angle=min_angle,
-                on_low_quality="raise",
-                relax=relax,
-            )
-            timings["conform"] += time.perf_counter() - t
-            t = time.perf_counter()
-            curved = curved_mesh(cm, degree, map) if degree > 1 else None
-            timings["curved"] += time.perf_counter() - t
-            quality = quality_report(cm)
+            done = attempt(plan, background)
+            quality = done.quality
             alt = getattr(plan, "alternative", None)
             if alt is None or not _below_auto_floor(quality) or alt.estimate() > max_cells:
-                break
+                return done, rounds
             # tet_background="auto" chose the octree: its BCC band fell below the angles
             # that A15 keeps (measured: 23 degrees on tori where A15 gives 32); take A15.
-            fallback = (plan, background, cm, curved, quality, len(rounds))
+            fallback = (done, len(rounds))
             rounds.append(
                 f"round {len(rounds) + 1}: dihedral angles in "
                 f"[{quality['theta_min_deg']:.3g}, {quality['theta_max_deg']:.3g}] deg on the "
@@ -541,14 +583,13 @@ def mesh_domain(
             )
             setattr(plan, "alternative", None)  # noqa: B010 (a _GradedTetPlan)
             plan = alt
-            continue
         except MeshingError as e:
             first = str(e).splitlines()[0]
             if fallback is not None:  # A15 failed where the octree's mesh was valid: keep it
-                plan, background, cm, curved, quality, k = fallback
+                kept, k = fallback
                 rounds[k] += f" (which failed: {_short(first)}; the octree's mesh kept)"
                 del rounds[k + 1 :]
-                break
+                return kept, rounds
             if not e.refinable or len(e.points) == 0:
                 raise
             if len(rounds) >= max_rounds:
@@ -563,13 +604,24 @@ def mesh_domain(
             plan, note = _refined(plan, e.points, comm, max_cells)
             rounds[-1] += note
 
+
+def _certificate(
+    comm: MPI.Comm,
+    done: _Attempt,
+    rounds: list[str],
+    h: float,
+    degree: int,
+    map: str,
+    min_angle: float,
+) -> Certificate:
+    """The :class:`Certificate` of the round that passed (collective)."""
+    plan, cm, curved, quality = done.plan, done.cm, done.curved, done.quality
     jac = curved.min_jacobian_ratio if curved is not None else 1.0
     hvals = plan.sizes()
     size_used = comm.allreduce(float(hvals.min()), op=MPI.MIN)
     msh = curved.mesh if curved is not None else cm.mesh
-    tags = curved.facet_tags if curved is not None else cm.facet_tags
     tdim = msh.topology.dim
-    certificate = Certificate(
+    return Certificate(
         max_conditioning_angle_deg=cm.max_conditioning_angle,
         min_feature_over_h=float(np.min(plan.feature / hvals)),
         min_curvature_radius_over_h=float(np.min(plan.rho / hvals)),
@@ -584,15 +636,12 @@ def mesh_domain(
         h_max=h,
         h_min=size_used,
         num_cells=msh.topology.index_map(tdim).size_global,
-        num_background_cells=background.topology.index_map(tdim).size_global,
+        num_background_cells=done.background.topology.index_map(tdim).size_global,
         degree=degree,
         map=map,
         background=plan.name,
         tdim=tdim,
     )
-    timings["total"] = time.perf_counter() - t_start
-    timings = {k: comm.allreduce(v, op=MPI.MAX) for k, v in timings.items()}
-    return MeshedDomain(msh, tags, certificate, cm, curved, timings)
 
 
 class _Plan:
