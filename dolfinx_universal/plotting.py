@@ -794,25 +794,11 @@ def plot_conforming(
     ``(figure, axes)`` on rank 0, ``(None, None)`` on the other ranks.
     """
     _mpl()
-    comm = cm.mesh.comm
     msh: dmesh.Mesh = cm.mesh if mesh is None else getattr(mesh, "mesh", mesh)  # CurvedMesh.mesh
-    sub = cm.mesh
-    nco_sub = sub.topology.index_map(2).size_local
     degree, variant = _geometry_degree(msh)
-    local_ok = int(msh is sub or msh.topology.index_map(2).size_local == nco_sub)
-    same_order = comm.allreduce(local_ok, op=MPI.MIN) == 1
-    if same_order:
-        kind = cell_kinds(cm, msh)
-        tags = getattr(mesh, "facet_tags", None) if mesh is not None else None
-        from .conform import IMMERSED
-
-        gmask = _immersed_mask(sub, cm.facet_tags if tags is None else tags, IMMERSED)
-        cell_data = np.column_stack([kind, gmask]).astype(np.int8)
-        nodes, data = gather_cells(msh, cell_data)
-    else:
-        nodes, data = gather_cells(msh), None
+    nodes, data = _gather_kinds(cm, msh, getattr(mesh, "facet_tags", None))
     bg_nodes = gather_cells(cm.background) if show_background else None
-    if comm.rank != 0:
+    if cm.mesh.comm.rank != 0:
         return None, None
     assert nodes is not None  # gathered on rank 0
 
@@ -893,18 +879,8 @@ def plot_conforming(
     if legend:
         handles: list[Patch | Line2D] = []
         if shade:
-            counts = np.bincount(kind.astype(np.int64), minlength=4)
-            names = KIND_NAMES if data is not None else ("cells",)
-            for code, name in enumerate(names):
-                if data is None or counts[code]:
-                    label = f"{name} ({counts[code] if data is not None else len(nodes)})"
-                    if code == 3:
-                        label = f"curved, degree {degree} ({counts[code]})"
-                    handles.append(
-                        Patch(
-                            facecolor=colours[code], edgecolor=edgecolor, linewidth=0.5, label=label
-                        )
-                    )
+            handles += _kind_patches(kind if data is not None else None, len(nodes), colours,
+                                     edgecolor, degree)  # fmt: skip
         if bg_nodes is not None:
             handles.append(
                 Line2D([], [], color=background_edgecolor, lw=1.0, label="background mesh")
@@ -929,6 +905,51 @@ def plot_conforming(
             ax, (x0, y0, x1, y1), lambda a: draw(a, lw_in, None), avoid=_legend_corner(legend)
         )
     return fig, ax
+
+
+def _gather_kinds(
+    cm: ConformingMesh, msh: dmesh.Mesh, tags: Any
+) -> tuple[npt.NDArray | None, npt.NDArray | None]:
+    """The cells of ``msh`` gathered on rank 0 with, per cell, its kind (:func:`cell_kinds`)
+    and which of its edges lie on Gamma_h (``IMMERSED`` in ``tags``, else in ``cm``'s
+    tags), ``(n, 4)`` int8; no data where ``msh`` does not have ``cm.mesh``'s local cells
+    on every rank (collective)."""
+    from .conform import IMMERSED
+
+    sub = cm.mesh
+    local_ok = int(msh is sub or msh.topology.index_map(2).size_local == _owned_cells(sub))
+    if sub.comm.allreduce(local_ok, op=MPI.MIN) != 1:
+        return gather_cells(msh), None
+    kind = cell_kinds(cm, msh)
+    gmask = _immersed_mask(sub, cm.facet_tags if tags is None else tags, IMMERSED)
+    return gather_cells(msh, np.column_stack([kind, gmask]).astype(np.int8))
+
+
+def _owned_cells(msh: dmesh.Mesh) -> int:
+    return msh.topology.index_map(msh.topology.dim).size_local
+
+
+def _kind_patches(
+    kind: npt.NDArray | None, num_cells: int, colours: npt.NDArray, edgecolor: Any, degree: int
+) -> list[Any]:
+    """Legend patches of the cell kinds present, with their counts (one patch for all
+    cells when the kinds are unknown, ``kind=None``)."""
+    from matplotlib.patches import Patch
+
+    if kind is None:
+        return [Patch(facecolor=colours[0], edgecolor=edgecolor, linewidth=0.5,
+                      label=f"cells ({num_cells})")]  # fmt: skip
+    counts = np.bincount(kind.astype(np.int64), minlength=4)
+    patches = []
+    for code, name in enumerate(KIND_NAMES):
+        if counts[code]:
+            label = f"{name} ({counts[code]})"
+            if code == 3:
+                label = f"curved, degree {degree} ({counts[code]})"
+            patches.append(
+                Patch(facecolor=colours[code], edgecolor=edgecolor, linewidth=0.5, label=label)
+            )
+    return patches
 
 
 def _cells_in_window(nodes: npt.NDArray, window: tuple[float, float, float, float]) -> int:
