@@ -357,6 +357,8 @@ def relax_vertices(
             comm, imv, closest_normal, x0, xp, y, cells, movable, on_gamma, normal, phi, h,
             sweeps=sweeps,
         )  # fmt: skip
+    from ._dvr import vertex_colours_graph  # the colours of vertex_colours, in less time
+
     y0, y, xp = y, y.copy(), xp.copy()
     dim = y.shape[1]
     if sweeps is None:
@@ -368,7 +370,7 @@ def relax_vertices(
     local = np.full(len(y), -1, dtype=np.int64)
     local[verts] = np.arange(m)
     csub = local[cells]
-    colour = vertex_colours(sub, csub, coordinate_priority(x0[verts]))
+    colour = vertex_colours_graph(sub, csub, coordinate_priority(x0[verts]))
     ncol = comm.allreduce(int(colour.max(initial=-1)) + 1, op=MPI.MAX)
     # Star entries (vertex, opposite corners a, b, orientation), sorted by colour and vertex
     # so that each colour is a slice and each vertex a segment of it.
@@ -385,7 +387,8 @@ def relax_vertices(
     # degenerate triangles (no orientation to keep) rate -1 whatever the candidate.
     ea, eb = np.where(eo < 0, eb, ea), np.where(eo < 0, ea, eb)
     opposite = [ea, eb]
-    flat = np.flatnonzero(eo == 0)
+    flat = eo == 0
+    any_flat = bool(flat.any())
     # Edges between two vertices on Gamma (the edges of Gamma_h) may not grow beyond
     # GAMMA_EDGE_MAX h (or their length after M_h, if longer): the same cap seen from both
     # ends, so that it always holds and the ratings stay those of the true triangles.
@@ -398,7 +401,8 @@ def relax_vertices(
         length = _length(d)  # as in rate(): the current position passes
         hmax_e = np.maximum(h[pv[both]], h[corner_of[both]])
         cap[both] = np.maximum(GAMMA_EDGE_MAX * hmax_e, length) * (1.0 + TIE)
-        caps.append((corner_of, cap))
+        if len(both):
+            caps.append((corner_of, cap, cap < np.inf))
 
     def rate(E: Int, p: Float) -> Float:
         """Qualities of the entries ``E`` with their vertex at ``p (len(E), ..., dim)``."""
@@ -409,10 +413,10 @@ def relax_vertices(
         q = _star_quality(
             px, py, a[col + (0,)], a[col + (1,)], b[col + (0,)], b[col + (1,)], lab[col]
         )
-        if len(flat):
-            q[np.isin(E, flat)] = -1.0
-        for corner_of, cap in caps:
-            i = np.flatnonzero(cap[E] < np.inf)
+        if any_flat:
+            q[flat[E]] = -1.0
+        for corner_of, cap, capped in caps:
+            i = np.flatnonzero(capped[E])
             if len(i):
                 c = y[corner_of[E[i]]]
                 d = _length(p[i] - c[col])
