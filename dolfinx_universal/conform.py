@@ -19,11 +19,11 @@ from .background import GRADATION, vertex_sizes
 from .checks import (
     CellLocator,
     TetMeasures,
-    boundary_samples,
     cells_near_points,
     classification_problems,
     conforming_problems,
     containment_problems,
+    containment_samples,
     gamma_h_topology,
     low_quality_cells,
     missing_samples_problems,
@@ -531,14 +531,20 @@ class UniversalMesh:
             Loops of Gamma_h and connected pieces of the kept cells.
         """
         comm, imv = self.comm, self._imv
+        # One sampling of Gamma serves the containment and the Gamma_h topology checks.
+        if self.tdim == 2:
+            samples = self._curve_samples(boundary, band)
+            pts = containment_samples(samples.points)
+        else:
+            parts = self._surface_parts(boundary, band)
+            pts = containment_samples(parts.points)
         # Containment first: a domain leaving the background also breaks Gamma_h there, and
         # "refine" would point the wrong way.
         if self.tdim == 2:  # the locator of all cells, cached for moving domains
             cells = near_cells.astype(np.int32)
-            raise_collective(comm, containment_problems(self._locator, boundary, cells, comm))
+            raise_collective(comm, containment_problems(self._locator, pts, cells, comm))
         else:  # 3D: only the cells that can hold a sample of Gamma (each vertex within its
             # size h, at least the diameter of its cells, of Gamma, and next to a sample)
-            pts = boundary_samples(comm, boundary)
             near_v = np.abs(phi) <= self.h
             size = float(self.h[near_v].max()) if near_v.any() else 0.0
             v2c_offsets, v2c = self._v2c
@@ -558,13 +564,11 @@ class UniversalMesh:
         facets = pe.facets
         gids = imv.local_to_global(facets.ravel().astype(np.int32)).reshape(facets.shape)
         if self.tdim == 2:
-            samples = self._curve_samples(boundary, band)
             u, v, w = pe.u, pe.v, pe.w
             topo_problems, num_loops, num_pieces = gamma_h_topology(
                 comm, gids, xp[u], xp[v], xp[w], samples, far_kept
             )
         else:
-            parts = self._surface_parts(boundary, band)
             topo_problems, num_loops, num_pieces = surface_topology(
                 comm, gids, xp[facets[:, 0]], xp[facets[:, 1]], xp[facets[:, 2]], parts, far_kept
             )
