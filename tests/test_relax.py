@@ -164,8 +164,8 @@ def test_random_domains(seed):
 
 def test_gamma_vertices_stay_on_gamma(circle24):
     off, on = circle24[False], circle24[True]
-    assert np.array_equal(on.on_positive_edge, off.on_positive_edge)
-    g = on.on_positive_edge
+    assert np.array_equal(on.on_gamma, off.on_gamma)
+    g = on.on_gamma
     r = np.linalg.norm(on.x[g] - np.asarray(CENTRE), axis=1)
     # Closest points of the unit circle: rounding only (a few ulps; 1e-13 = 450 ulps), as the
     # distances below (the same projections, relaxed or not).
