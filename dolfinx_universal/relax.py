@@ -360,10 +360,8 @@ def relax_vertices(
     from ._dvr import vertex_colours_graph  # the colours of vertex_colours, in less time
 
     y0, y, xp = y, y.copy(), xp.copy()
-    dim = y.shape[1]
     if sweeps is None:
         sweeps = SWEEPS
-    gamma_sweeps = GAMMA_SWEEPS
     sub = _Sub(imv, np.flatnonzero(movable))
     verts = sub.vertices
     m = len(verts)
@@ -372,160 +370,38 @@ def relax_vertices(
     csub = local[cells]
     colour = vertex_colours_graph(sub, csub, coordinate_priority(x0[verts]))
     ncol = comm.allreduce(int(colour.max(initial=-1)) + 1, op=MPI.MAX)
-    # Star entries (vertex, opposite corners a, b, orientation), sorted by colour and vertex
-    # so that each colour is a slice and each vertex a segment of it.
-    cell_idx, corner = np.nonzero(csub >= 0)
-    ev = csub[cell_idx, corner]
-    order = np.lexsort((ev, colour[ev]))
-    cell_idx, corner, ev = cell_idx[order], corner[order], ev[order]
-    c = cells[cell_idx]
-    ea = cells[cell_idx, (corner + 1) % 3]
-    eb = cells[cell_idx, (corner + 2) % 3]
-    d1, d2 = y[c[:, 1]] - y[c[:, 0]], y[c[:, 2]] - y[c[:, 0]]
-    eo = np.sign(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
-    # Corners a, b in counter-clockwise order (p, a, b) for the kernel; the entries of
-    # degenerate triangles (no orientation to keep) rate -1 whatever the candidate.
-    ea, eb = np.where(eo < 0, eb, ea), np.where(eo < 0, ea, eb)
-    opposite = [ea, eb]
-    flat = eo == 0
-    any_flat = bool(flat.any())
-    # Edges between two vertices on Gamma (the edges of Gamma_h) may not grow beyond
-    # GAMMA_EDGE_MAX h (or their length after M_h, if longer): the same cap seen from both
-    # ends, so that it always holds and the ratings stay those of the true triangles.
-    pv = verts[ev]
-    caps = []  # per opposite corner: the cap of each entry's edge p-corner, inf if none
-    for corner_of in opposite:
-        cap = np.full(len(ev), np.inf)
-        both = np.flatnonzero(on_gamma[pv] & on_gamma[corner_of])
-        d = y[pv[both]] - y[corner_of[both]]
-        length = _length(d)  # as in rate(): the current position passes
-        hmax_e = np.maximum(h[pv[both]], h[corner_of[both]])
-        cap[both] = np.maximum(GAMMA_EDGE_MAX * hmax_e, length) * (1.0 + TIE)
-        if len(both):
-            caps.append((corner_of, cap, cap < np.inf))
-
-    def rate(E: Int, p: Float) -> Float:
-        """Qualities of the entries ``E`` with their vertex at ``p (len(E), ..., dim)``."""
-        col = (slice(None),) + (None,) * (p.ndim - 2)
-        px, py = p[..., 0], p[..., 1]
-        a, b = y[ea[E]], y[eb[E]]
-        lab = np.hypot(b[:, 0] - a[:, 0], b[:, 1] - a[:, 1])
-        q = _star_quality(
-            px, py, a[col + (0,)], a[col + (1,)], b[col + (0,)], b[col + (1,)], lab[col]
-        )
-        if any_flat:
-            q[flat[E]] = -1.0
-        for corner_of, cap, capped in caps:
-            i = np.flatnonzero(capped[E])
-            if len(i):
-                c = y[corner_of[E[i]]]
-                d = _length(p[i] - c[col])
-                q[i] = np.where(d > cap[E[i]][col], -1.0, q[i])
-        return q
-
+    stars = _Stars(y, cells, csub, colour, verts, on_gamma, h)
+    ev = stars.ev
     bounds = np.searchsorted(colour[ev], np.arange(ncol + 1))
     groups = [
         (slice(bounds[k], bounds[k + 1]), np.flatnonzero(colour == k)) for k in range(ncol)
     ]  # each colour's entries, and its vertices (with or without entries on this rank)
-    gamma = np.flatnonzero(on_gamma[verts])
-    tangent = normal[verts[gamma]] @ np.array([[0.0, 1.0], [-1.0, 0.0]])
-    nrm = normal.copy()  # normals at the current positions of the vertices on Gamma
-    step = INITIAL_STEP * h[verts]
-    hmax = MAX_STEP * h[verts]
-    hmin = MIN_STEP * h[verts]
-    steps = np.asarray(STEPS)
-    gsteps = np.asarray(GAMMA_STEPS)
-    ndir = DIRECTIONS
-    tangential = np.concatenate([gsteps, -gsteps])[:, None]
-    slide_full = np.concatenate([gsteps, gsteps]) == gsteps[0]
-    nc = 1 + ndir * len(steps)
-    full_step = np.zeros((2, nc), dtype=bool)  # candidates at the full step: inside, on Gamma
-    full_step[0, 1 : 1 + ndir] = True
-    full_step[1, 1 : 1 + len(tangential)] = slide_full
-    is_gamma = np.zeros(m, dtype=np.int64)
-    is_gamma[gamma] = 1
-    golden = np.pi * (3.0 - np.sqrt(5.0))
+    compass = _Compass(comm, sub, closest_normal, y, normal, on_gamma, h)
     num_moves, done, idle = 0, 0, 0
-    vstart = np.flatnonzero(np.diff(ev, prepend=-1))  # each vertex's entries are contiguous
-    qe = np.empty(len(ev))  # quality of each star entry at the current positions
-    changed = np.ones(len(y), dtype=bool)  # vertices moved since qe was last brought up to date
+    changed = np.ones(len(y), dtype=bool)  # vertices moved since the star qualities were rated
     for sweep in range(sweeps):
-        # Only vertices with a triangle below ACTIVE_BELOW move in this sweep.
-        star = np.full(m, np.inf)
-        if len(ev):
-            touched = changed[verts[ev]]
-            for o in opposite:
-                touched = touched | changed[o]
-            D = np.flatnonzero(touched)
-            qe[D] = rate(D, y[verts[ev[D]]])
-            changed[:] = False
-            star[ev[vstart]] = np.minimum.reduceat(qe, vstart)
+        # Only vertices with a triangle below ACTIVE_BELOW move in this sweep ...
+        star = stars.star_minima(changed, m)
+        changed[:] = False
         # ... and whose compass search has not converged (step below MIN_STEP h).
-        active = (sub.reduce(star, "min") < ACTIVE_BELOW) & (step > hmin)
-        if sweep >= gamma_sweeps:  # the vertices on Gamma have had their sweeps
-            active[gamma] = False
+        active = (sub.reduce(star, "min") < ACTIVE_BELOW) & (compass.step > compass.hmin)
+        if sweep >= GAMMA_SWEEPS:  # the vertices on Gamma have had their sweeps
+            active[compass.gamma] = False
         if not comm.allreduce(bool(active[: sub.size_local].any()), op=MPI.LOR):
             break
-        act = np.flatnonzero(active)
-        row = np.full(m, -1, dtype=np.int64)
-        row[act] = np.arange(len(act))
         live = np.zeros(ncol, dtype=bool)
-        live[colour[act]] = True
+        live[colour[active]] = True
         if sub.map is not None:
             flags = live.astype(np.int32)
             comm.Allreduce(MPI.IN_PLACE, flags, op=MPI.MAX)
             live = flags > 0
-        theta = sweep * golden + 2.0 * np.pi * np.arange(DIRECTIONS) / DIRECTIONS
-        dirs = np.column_stack([np.cos(theta), np.sin(theta)])
-        offsets = np.concatenate(
-            [np.zeros((1, dim)), (steps[:, None, None] * dirs).reshape(-1, dim)]
-        )
-        # A vertex's candidates depend on its own position only, which changes only when
-        # its colour moves: generate (and project) those of the active vertices at once.
-        cand = y[verts[act]][:, None, :] + step[act, None, None] * offsets[None]  # (na, nc, d)
-        # Vertices on Gamma: +-tangent steps, projected onto Gamma (the other candidates
-        # repeat their current position).
-        ga = np.flatnonzero(active[gamma])
-        g = gamma[ga]
-        cand_n = None  # the normals at the candidates of the vertices on Gamma
-        if comm.allreduce(len(g) > 0, op=MPI.LOR):  # (a projection costs ~1 ms even if small)
-            slide = step[g, None, None] * tangential[None] * tangent[ga, None, :]
-            pg = (y[verts[g]][:, None, :] + slide).reshape(-1, dim)
-            pc, pn = collective_call(comm, "closest-point projection", closest_normal, pg)
-            shape = (len(g), len(tangential), dim)
-            cand[row[g]] = y[verts[g]][:, None, :]
-            cand[row[g], 1 : 1 + len(tangential)] = np.reshape(pc, shape)
-            cand_n = np.empty_like(cand)
-            cand_n[row[g]] = nrm[verts[g]][:, None, :]
-            cand_n[row[g], 1 : 1 + len(tangential)] = np.reshape(pn, shape)
+        compass.generate(active, sweep)
         moves = 0
         for k in np.flatnonzero(live):
             e, S = groups[k]
             E = e.start + np.flatnonzero(active[ev[e]])
-            starts = np.flatnonzero(np.diff(ev[E], prepend=-1))
-            S = S[active[S]]
-            q = rate(E, cand[row[ev[E]]])
-            qmin = np.minimum.reduceat(q, starts, axis=0) if len(starts) else q[:0]
-            if sub.map is None:
-                qs, S = qmin, ev[E][starts]
-            else:
-                qv = np.full((m, nc), np.inf)
-                qv[ev[E][starts]] = qmin
-                qs = sub.reduce(qv, "min")[S]
-            # The first candidate (fixed order) within TIE of the best, taken if it beats
-            # the current position by more than TIE: decisions that rounding cannot flip.
-            best = np.argmax(qs >= qs.max(axis=1, initial=-np.inf)[:, None] - TIE, axis=1)
-            gain = qs[np.arange(len(S)), best] > qs[:, 0] + TIE
-            win, bw = S[gain], best[gain]
-            y[verts[win]] = cand[row[win], bw]
+            win = compass.move(S[active[S]], E, stars)
             changed[verts[win]] = True
-            on = is_gamma[win] == 1
-            if cand_n is not None and on.any():
-                nrm[verts[win[on]]] = cand_n[row[win[on]], bw[on]]
-            # Grow the step after a full step, shrink it where nothing helped.
-            factor = np.full(len(S), 0.4)
-            factor[gain] = np.where(full_step[is_gamma[win], bw], 1.5, 0.75)
-            step[S] = np.minimum(factor * step[S], hmax[S])
             moves += int(np.count_nonzero(win < sub.size_local))
         done = sweep + 1
         moves = comm.allreduce(moves, op=MPI.SUM)
@@ -533,11 +409,192 @@ def relax_vertices(
         idle = idle + 1 if moves == 0 else 0
         if idle >= 2:
             break
-    slid = verts[gamma]
+    slid = verts[compass.gamma]
     slid = slid[np.any(y[slid] != y0[slid], axis=1)]
-    xp[slid] = y[slid] + phi[slid, None] * nrm[slid]
+    xp[slid] = y[slid] + phi[slid, None] * compass.nrm[slid]
     moved = np.any(y != x0, axis=1)
     return Relaxation(y, xp, moved, num_moves, done)
+
+
+class _Stars:
+    """The triangles around the movable vertices, as star entries, and their ratings.
+
+    One entry per (movable vertex ``p``, triangle of ``p``) with the triangle's other
+    corners ``a``, ``b`` in counter-clockwise order (so that the kernel rates ``(p, a, b)``),
+    sorted by colour and vertex: each colour is a slice, each vertex a segment of it.
+    Degenerate triangles (no orientation to keep) rate -1 whatever the candidate. Edges
+    between two vertices on Gamma (the edges of Gamma_h) may not grow beyond
+    :data:`GAMMA_EDGE_MAX` ``h`` (or their length after ``M_h``, if longer): the same cap seen
+    from both ends, so that it always holds and the ratings stay those of the true
+    triangles. ``y`` is the relaxation's array of current positions (moves write into it).
+    """
+
+    def __init__(
+        self, y: Float, cells: Int, csub: Int, colour: Int, verts: Int, on_gamma: Bool, h: Float
+    ) -> None:
+        self.y = y
+        cell_idx, corner = np.nonzero(csub >= 0)
+        ev = csub[cell_idx, corner]
+        order = np.lexsort((ev, colour[ev]))
+        cell_idx, corner, ev = cell_idx[order], corner[order], ev[order]
+        c = cells[cell_idx]
+        ea = cells[cell_idx, (corner + 1) % 3]
+        eb = cells[cell_idx, (corner + 2) % 3]
+        d1, d2 = y[c[:, 1]] - y[c[:, 0]], y[c[:, 2]] - y[c[:, 0]]
+        eo = np.sign(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+        self.ea, self.eb = np.where(eo < 0, eb, ea), np.where(eo < 0, ea, eb)
+        self.ev, self.verts = ev, verts
+        self.flat = eo == 0
+        self.any_flat = bool(self.flat.any())
+        pv = verts[ev]
+        self.caps = []  # per opposite corner: the cap of each entry's edge p-corner, inf if none
+        for corner_of in (self.ea, self.eb):
+            cap = np.full(len(ev), np.inf)
+            both = np.flatnonzero(on_gamma[pv] & on_gamma[corner_of])
+            d = y[pv[both]] - y[corner_of[both]]
+            length = _length(d)  # as in rate(): the current position passes
+            hmax_e = np.maximum(h[pv[both]], h[corner_of[both]])
+            cap[both] = np.maximum(GAMMA_EDGE_MAX * hmax_e, length) * (1.0 + TIE)
+            if len(both):
+                self.caps.append((corner_of, cap, cap < np.inf))
+        self.vstart = np.flatnonzero(np.diff(ev, prepend=-1))  # each vertex's segment
+        self.qe = np.empty(len(ev))  # quality of each entry at the current positions
+
+    def rate(self, E: Int, p: Float) -> Float:
+        """Qualities of the entries ``E`` with their vertex at ``p (len(E), ..., 2)``."""
+        y = self.y
+        col = (slice(None),) + (None,) * (p.ndim - 2)
+        px, py = p[..., 0], p[..., 1]
+        a, b = y[self.ea[E]], y[self.eb[E]]
+        lab = np.hypot(b[:, 0] - a[:, 0], b[:, 1] - a[:, 1])
+        q = _star_quality(
+            px, py, a[col + (0,)], a[col + (1,)], b[col + (0,)], b[col + (1,)], lab[col]
+        )
+        if self.any_flat:
+            q[self.flat[E]] = -1.0
+        for corner_of, cap, capped in self.caps:
+            i = np.flatnonzero(capped[E])
+            if len(i):
+                c = y[corner_of[E[i]]]
+                d = _length(p[i] - c[col])
+                q[i] = np.where(d > cap[E[i]][col], -1.0, q[i])
+        return q
+
+    def star_minima(self, changed: Bool, m: int) -> Float:
+        """The worst quality around each movable vertex ``(m,)`` (inf without entries),
+        re-rating the entries with a corner among the ``changed`` vertices."""
+        star = np.full(m, np.inf)
+        ev = self.ev
+        if len(ev):
+            touched = changed[self.verts[ev]] | changed[self.ea] | changed[self.eb]
+            D = np.flatnonzero(touched)
+            self.qe[D] = self.rate(D, self.y[self.verts[ev[D]]])
+            star[ev[self.vstart]] = np.minimum.reduceat(self.qe, self.vstart)
+        return star
+
+
+class _Compass:
+    """The compass search of :func:`relax_vertices`: candidates, steps and moves.
+
+    Each sweep, every active vertex gets :data:`DIRECTIONS` directions (rotated by the
+    golden angle from sweep to sweep) at :data:`STEPS` times its step, and the vertices on
+    Gamma slide both ways along Gamma at :data:`GAMMA_STEPS` (projected, with the normals
+    there); candidate 0 is the current position. A vertex's candidates depend on its own
+    position only, which changes only when its colour moves, so they are generated (and
+    projected) once per sweep.
+    """
+
+    def __init__(
+        self,
+        comm: MPI.Comm,
+        sub: _Sub,
+        closest_normal: Callable[[Float], tuple[Float, Float]],
+        y: Float,
+        normal: Float,
+        on_gamma: Bool,
+        h: Float,
+    ) -> None:
+        self.comm, self.sub, self.closest_normal, self.y = comm, sub, closest_normal, y
+        verts = sub.vertices
+        self.gamma = np.flatnonzero(on_gamma[verts])
+        self.tangent = normal[verts[self.gamma]] @ np.array([[0.0, 1.0], [-1.0, 0.0]])
+        self.nrm = normal.copy()  # normals at the current positions of the vertices on Gamma
+        self.step = INITIAL_STEP * h[verts]
+        self.hmax = MAX_STEP * h[verts]
+        self.hmin = MIN_STEP * h[verts]
+        gsteps = np.asarray(GAMMA_STEPS)
+        self.tangential = np.concatenate([gsteps, -gsteps])[:, None]
+        slide_full = np.concatenate([gsteps, gsteps]) == gsteps[0]
+        self.nc = nc = 1 + DIRECTIONS * len(STEPS)
+        self.full_step = np.zeros((2, nc), dtype=bool)  # at the full step: inside, on Gamma
+        self.full_step[0, 1 : 1 + DIRECTIONS] = True
+        self.full_step[1, 1 : 1 + len(self.tangential)] = slide_full
+        self.is_gamma = np.zeros(len(verts), dtype=np.int64)
+        self.is_gamma[self.gamma] = 1
+        self.row = np.full(len(verts), -1, dtype=np.int64)
+        self.cand = np.zeros((0, nc, 2))
+        self.cand_n: Float | None = None
+
+    def generate(self, active: Bool, sweep: int) -> None:
+        """The candidates of the ``active`` vertices in this ``sweep`` (collective)."""
+        y, verts, dim = self.y, self.sub.vertices, self.y.shape[1]
+        act = np.flatnonzero(active)
+        self.row = row = np.full(len(verts), -1, dtype=np.int64)
+        row[act] = np.arange(len(act))
+        golden = np.pi * (3.0 - np.sqrt(5.0))
+        theta = sweep * golden + 2.0 * np.pi * np.arange(DIRECTIONS) / DIRECTIONS
+        dirs = np.column_stack([np.cos(theta), np.sin(theta)])
+        offsets = np.concatenate(
+            [np.zeros((1, dim)), (np.asarray(STEPS)[:, None, None] * dirs).reshape(-1, dim)]
+        )
+        step = self.step
+        self.cand = cand = y[verts[act]][:, None, :] + step[act, None, None] * offsets[None]
+        # Vertices on Gamma: +-tangent steps, projected onto Gamma (the other candidates
+        # repeat their current position).
+        gamma = self.gamma
+        ga = np.flatnonzero(active[gamma])
+        g = gamma[ga]
+        self.cand_n = None  # the normals at the candidates of the vertices on Gamma
+        if self.comm.allreduce(len(g) > 0, op=MPI.LOR):  # (a projection costs ~1 ms)
+            tangential = self.tangential
+            slide = step[g, None, None] * tangential[None] * self.tangent[ga, None, :]
+            pg = (y[verts[g]][:, None, :] + slide).reshape(-1, dim)
+            pc, pn = collective_call(self.comm, "closest-point projection", self.closest_normal, pg)
+            shape = (len(g), len(tangential), dim)
+            cand[row[g]] = y[verts[g]][:, None, :]
+            cand[row[g], 1 : 1 + len(tangential)] = np.reshape(pc, shape)
+            self.cand_n = cand_n = np.empty_like(cand)
+            cand_n[row[g]] = self.nrm[verts[g]][:, None, :]
+            cand_n[row[g], 1 : 1 + len(tangential)] = np.reshape(pn, shape)
+
+    def move(self, S: Int, E: Int, stars: _Stars) -> Int:
+        """Move the active vertices ``S`` of one colour, whose entries are ``E``, each to its
+        best candidate if that beats staying (collective); return those that moved."""
+        sub, verts, row, cand = self.sub, self.sub.vertices, self.row, self.cand
+        ev = stars.ev
+        starts = np.flatnonzero(np.diff(ev[E], prepend=-1))
+        q = stars.rate(E, cand[row[ev[E]]])
+        qmin = np.minimum.reduceat(q, starts, axis=0) if len(starts) else q[:0]
+        if sub.map is None:
+            qs, S = qmin, ev[E][starts]
+        else:
+            qv = np.full((len(verts), self.nc), np.inf)
+            qv[ev[E][starts]] = qmin
+            qs = sub.reduce(qv, "min")[S]
+        # The first candidate (fixed order) within TIE of the best, taken if it beats
+        # the current position by more than TIE: decisions that rounding cannot flip.
+        best = np.argmax(qs >= qs.max(axis=1, initial=-np.inf)[:, None] - TIE, axis=1)
+        gain = qs[np.arange(len(S)), best] > qs[:, 0] + TIE
+        win, bw = S[gain], best[gain]
+        self.y[verts[win]] = cand[row[win], bw]
+        on = self.is_gamma[win] == 1
+        if self.cand_n is not None and on.any():
+            self.nrm[verts[win[on]]] = self.cand_n[row[win[on]], bw[on]]
+        # Grow the step after a full step, shrink it where nothing helped.
+        factor = np.full(len(S), 0.4)
+        factor[gain] = np.where(self.full_step[self.is_gamma[win], bw], 1.5, 0.75)
+        self.step[S] = np.minimum(factor * self.step[S], self.hmax[S])
+        return win
 
 
 def movable_vertices(
