@@ -481,8 +481,6 @@ def _version() -> str:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of ``dolfinx-universal`` / ``python -m dolfinx_universal``."""
-    from .curved import MAPS
-
     p = _Parser(
         prog=PROG,
         description=(
@@ -506,6 +504,15 @@ def build_parser() -> argparse.ArgumentParser:
         ),
         formatter_class=_Formatter,
     )
+    _shape_options(p)
+    _meshing_options(p)
+    _output_options(p)
+    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
+    return p
+
+
+def _shape_options(p: argparse.ArgumentParser) -> None:
+    """The shape options of :func:`build_parser`: one curve or surface, and its placement."""
     shape = p.add_argument_group("shape (exactly one): curves in 2D, surfaces in 3D")
     g = shape.add_mutually_exclusive_group(required=True)
     g.add_argument("--circle", type=float, metavar="R", help="circle of radius R")
@@ -605,6 +612,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="number of connected components of the implicit surface [default: counted on "
         "the sampling grid]",
     )
+
+
+def _meshing_options(p: argparse.ArgumentParser) -> None:
+    """The meshing options of :func:`build_parser`: sizes, background and method parameters."""
+    from .curved import MAPS
+
     m = p.add_argument_group("meshing")
     m.add_argument(
         "--h",
@@ -677,6 +690,10 @@ def build_parser() -> argparse.ArgumentParser:
         "edges (faces), I~ / G~ the blend G~_h through the straight conforming mesh "
         "[default: I for curves, I~ for surfaces]",
     )
+
+
+def _output_options(p: argparse.ArgumentParser) -> None:
+    """The output options of :func:`build_parser`."""
     o = p.add_argument_group("output")
     o.add_argument(
         "--out",
@@ -687,8 +704,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     o.add_argument("--no-plot", action="store_true", help="do not write mesh.png")
     o.add_argument("--quiet", action="store_true", help="print nothing on success")
-    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}")
-    return p
 
 
 def _positive(name: str, value: float | None) -> None:
