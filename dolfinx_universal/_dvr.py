@@ -263,76 +263,12 @@ def relax_tetrahedra(
     csub = local[cells]
     colour = vertex_colours_graph(sub, csub, coordinate_priority(x0[verts]))
     ncol = comm.allreduce(int(colour.max(initial=-1)) + 1, op=MPI.MAX)
-    # Star entries (vertex, opposite facet), sorted by colour and vertex: each colour is a
-    # slice, each vertex a segment of it. The facet (a, b, c) is ordered so that
-    # (p, a, b, c) is positively oriented while p stays on the cell's side.
-    cell_idx, corner = np.nonzero(csub >= 0)  # sorted by cell
-    ev = csub[cell_idx, corner]
-    key = colour[ev] * max(m, 1) + ev
-    if (ncol + 1) * max(m, 1) * max(len(cells), 1) < 2**62:  # unique keys: a faster sort
-        order = np.argsort(key * len(cells) + cell_idx)
-    else:
-        order = np.argsort(key, kind="stable")
-    inv = np.empty_like(order)
-    inv[order] = np.arange(len(order))
-    first = inv[np.flatnonzero(np.diff(cell_idx, prepend=-1))]  # an entry of each cell
-    cell_idx, corner, ev = cell_idx[order], corner[order], ev[order]
-    orient = np.sign(tet.signed_volumes(y, cells))
-    eo = orient[cell_idx]
-    f = cells[:, tet.FACETS][cell_idx, corner]
-    neg = eo < 0
-    f[neg] = f[neg][:, [0, 2, 1]]
-    f0, f1, f2 = (np.ascontiguousarray(f[:, i]) for i in range(3))
-    flat = eo == 0  # no orientation to keep: rated -1 whatever the position
-    pv = verts[ev]
-    # Edges of Gamma_h (both ends on Gamma) may not grow beyond GAMMA_EDGE_MAX h (or their
-    # length after M_h, if longer): the same cap seen from both ends, so that it always holds.
-    # One row per (vertex on Gamma, neighbour on Gamma), sorted by the vertex.
-    gv = np.concatenate([ev] * 3)
-    gw = np.concatenate([f0, f1, f2])
-    both = on_gamma[verts[gv]] & on_gamma[gw]
-    key = np.sort(gv[both] * len(y) + gw[both])
-    key = key[np.diff(key, prepend=-1) != 0]
-    cap_v, cap_w = key // len(y), key % len(y)
-    length = np.sqrt(((y[verts[cap_v]] - y[cap_w]) ** 2).sum(axis=1))
-    hmax_e = np.maximum(h[verts[cap_v]], h[cap_w])
-    cap_len2 = (np.maximum(GAMMA_EDGE_MAX * hmax_e, length) * (1.0 + TIE)) ** 2
-    cap_ptr = np.searchsorted(cap_v, np.arange(m + 1))  # each vertex's rows
-
-    yc = (y[:, 0].copy(), y[:, 1].copy(), y[:, 2].copy())  # y's coordinates, kept up to date
-
-    def _star(E: Int) -> tuple:
-        """:func:`star_terms` of the entries ``E``."""
-        return star_terms(yc, pv[E], f0[E], f1[E], f2[E])
-
-    # The quality of each tetrahedron at the current positions: rated once here (from one
-    # of its entries), then set by the move that changes it (the winning candidate's
-    # ratings of the mover's entries: no two vertices of a tetrahedron move together).
-    qcell = np.full(len(cells), -1.0)
-    _, _, _, s, L = _star(first)
-    r = np.cbrt(s)
-    qcell[cell_idx[first]] = np.where((s > 0.0) & ~flat[first], r * r / L, -1.0)
+    stars = _TetStars(y, cells, csub, colour, ncol, verts, on_gamma, h)
+    ev, cell_idx = stars.ev, stars.cell_idx
     bounds = np.searchsorted(colour[ev], np.arange(ncol + 1))
     groups = [np.flatnonzero(colour == k) for k in range(ncol)]
-    gamma_v = on_gamma[verts]
-    nrm = normal.copy()  # normals at the current positions of the vertices on Gamma
-    step = INITIAL_STEP * h[verts]
-    hmax = MAX_STEP * h[verts]
-    hmin = MIN_STEP * h[verts]
+    search = _Directional(comm, sub, closest_normal, stars, normal, on_gamma, h)
     todo = np.ones(m, dtype=bool)
-    rowof = np.zeros(m, dtype=np.int64)  # scratch: the row of each vertex of S
-
-    def _rows(S: Int, at: Int | slice, vals: Float, op: str, fill: float = np.inf) -> Float:
-        """Per-vertex values ``vals`` at rows ``at`` of ``S`` (``fill`` elsewhere), reduced
-        over the ranks with ``op``: one row per vertex of ``S``."""
-        out = np.full((len(S),) + vals.shape[1:], fill)
-        out[at] = vals
-        if sub.map is None:
-            return out
-        every = np.full((m,) + vals.shape[1:], fill)
-        every[S] = out
-        return sub.reduce(every, op)[S]
-
     num_moves, done = 0, 0
     for sweep in range(sweeps):
         changed = np.zeros(len(cells), dtype=bool)  # the cells a move changed in this sweep
@@ -348,152 +284,7 @@ def relax_tetrahedra(
                 continue
             lo, hi = bounds[k], bounds[k + 1]
             E = lo + np.flatnonzero(todo[ev[lo:hi]])
-            # The worst tetrahedron of each vertex's star (per row of S).
-            vE = ev[E]
-            rowof[S] = np.arange(len(S))
-            rE = rowof[vE]
-            starts = np.flatnonzero(np.diff(rE, prepend=-1))
-            qv = _rows(S, rE[starts], _segment_min(qcell[cell_idx[E]], starts), "min")
-            work = (qv < ACTIVE_BELOW) & (qv > -1.0)
-            # Only the vertices to work on and their entries, from here.
-            keep = work[rE]
-            E, S, q0 = E[keep], S[work], qv[work]
-            vE = ev[E]
-            rowof[S] = np.arange(len(S))
-            rE = rowof[vE]
-            (ux, uy, uz), (nx, ny, nz), lsq, s, L = _star(E)
-            q = qcell[cell_idx[E]]  # (their qualities: all valid, q0 > -1)
-            starts = np.flatnonzero(np.diff(rE, prepend=-1))
-            # Ascent direction: the near-worst entries' unit gradients, weighted.
-            q0E = q0[rE]
-            nw = np.flatnonzero(q < q0E + NEAR_WORST)
-            wg = ascent_gradients(
-                q[nw], q0E[nw], s[nw], L[nw], (ux[nw], uy[nw], uz[nw]),
-                (nx[nw], ny[nw], nz[nw]),
-            )  # fmt: skip
-            dv = np.empty((len(S), 3))
-            for i, wgi in enumerate(wg):
-                dv[:, i] = np.bincount(rE[nw], weights=wgi, minlength=len(S))
-            dv = _rows(S, slice(None), dv, "sum", 0.0)
-            gs = np.flatnonzero(gamma_v[S])
-            if len(gs):  # in the tangent plane
-                nn = nrm[verts[S[gs]]]
-                dv[gs] -= (dv[gs] * nn).sum(axis=1)[:, None] * nn
-            dvx, dvy, dvz = dv[:, 0], dv[:, 1], dv[:, 2]
-            dn = np.sqrt(dvx * dvx + dvy * dvy + dvz * dvz)
-            dv /= np.where(dn > 0.0, dn, 1.0)[:, None]
-            # The worst quality along the line, at LINE_STEPS times the step.
-            dx, dy, dz = dvx[rE], dvy[rE], dvz[rE]
-            sig = dx * nx + dy * ny + dz * nz
-            beta2 = dx * ux + dy * uy + dz * uz
-            beta2 *= 2.0
-            t = LINE_STEPS[:, None] * step[vE][None]  # (steps, entries)
-            qt = line_quality(s, L, sig, beta2, t)  # (caps: rated below, on Gamma)
-            qs = _rows(S, rE[starts], _segment_min(qt, starts).T, "min")
-            # The first step within TIE of the best, taken if it beats staying by > TIE.
-            best = np.argmax(qs >= qs.max(axis=1, initial=-np.inf)[:, None] - TIE, axis=1)
-            qb = qs[np.arange(len(S)), best]
-            tb = LINE_STEPS[best] * step[S]
-            gain = (qb > q0 + TIE) & (dn > 0.0)
-            new = y[verts[S]] + tb[:, None] * dv
-            # The entries' qualities at each vertex's chosen candidate.
-            qnew = qt[best[rE], np.arange(len(E))]
-            # Inside vertices stuck along their direction (a kink of three or more worst
-            # tetrahedra): a compass of COMPASS directions at COMPASS_STEPS times the step.
-            stuck = ~gain & ~gamma_v[S]
-            if comm.allreduce(bool(stuck.any()), op=MPI.LOR) and len(COMPASS_STEPS):
-                cs = np.flatnonzero(stuck[rE])
-                dirs = tet.directions(COMPASS, sweep * ncol + k)
-                sx, sy, sz = (v[cs] for v in (ux, uy, uz))
-                sig = (
-                    dirs[:, 0, None] * nx[cs]
-                    + dirs[:, 1, None] * ny[cs]
-                    + dirs[:, 2, None] * nz[cs]
-                )
-                beta2 = 2.0 * (
-                    dirs[:, 0, None] * sx + dirs[:, 1, None] * sy + dirs[:, 2, None] * sz
-                )
-                tc = COMPASS_STEPS[:, None, None] * step[vE[cs]][None, None]  # (ns, 1, n)
-                qc = line_quality(s[cs], L[cs], sig[None], beta2[None], tc)
-                qc = qc.reshape(COMPASS * len(COMPASS_STEPS), len(cs))  # (the same on all ranks)
-                rc = rE[cs]
-                sc = np.flatnonzero(np.diff(rc, prepend=-1))
-                qsc = _rows(S, rc[sc], _segment_min(qc, sc).T, "min")
-                bc = np.argmax(qsc >= qsc.max(axis=1, initial=-np.inf)[:, None] - TIE, axis=1)
-                qbc = qsc[np.arange(len(S)), bc]
-                take = stuck & (qbc > q0 + TIE)
-                jc, ic = np.divmod(bc, COMPASS)
-                tcb = COMPASS_STEPS[jc] * step[S]
-                gain |= take
-                new[take] = y[verts[S[take]]] + (tcb[:, None] * dirs[ic])[take]
-                tb[take] = tcb[take]
-                qb[take] = qbc[take]
-                tk = take[rc]
-                qnew[cs[tk]] = qc[bc[rc[tk]], np.flatnonzero(tk)]
-            # Vertices on Gamma: fractions of the best step, projected and rated exactly.
-            gi = np.flatnonzero(gamma_v[S] & (dn > 0.0))
-            if comm.allreduce(len(gi) > 0, op=MPI.LOR):
-                G = S[gi]
-                tg = tb[gi, None] * SLIDE_STEPS[None]
-                pc = y[verts[G]][:, None, :] + tg[..., None] * dv[gi][:, None, :]
-                if SLIDES:  # and a compass in the tangent plane at the current step
-                    td = tet.tangent_directions(nrm[verts[G]], SLIDES, sweep * ncol + k)
-                    pc = np.concatenate(
-                        [pc, y[verts[G]][:, None, :] + step[G, None, None] * td], axis=1
-                    )
-                    tg = np.concatenate([tg, np.repeat(step[G, None], SLIDES, axis=1)], axis=1)
-                ns = pc.shape[1]
-                pp, pn = collective_call(
-                    comm, "closest-point projection", closest_normal, pc.reshape(-1, 3)
-                )
-                pp, pn = pp.reshape(len(G), ns, 3), pn.reshape(len(G), ns, 3)
-                gpos = np.full(len(S), -1, dtype=np.int64)
-                gpos[gi] = np.arange(len(G))
-                eg = np.flatnonzero(gpos[rE] >= 0)
-                rg = gpos[rE[eg]]
-                pcx, pcy, pcz = (np.ascontiguousarray(pp[..., i].T) for i in range(3))
-                ip = pv[E[eg]]
-                face = tet.StarFaces(
-                    *(v[None] for v in (yc[0][ip] - ux[eg], yc[1][ip] - uy[eg],
-                                        yc[2][ip] - uz[eg], nx[eg], ny[eg], nz[eg], lsq[eg]))
-                )  # fmt: skip
-                qg = tet.star_quality(pcx[:, rg], pcy[:, rg], pcz[:, rg], face)  # (ns, entries)
-                qg[:, flat[E[eg]]] = -1.0
-                sg = np.flatnonzero(np.diff(rg, prepend=-1))
-                qsg = np.full((len(G), ns), np.inf)
-                if len(sg):
-                    qsg[rg[sg]] = _segment_min(qg, sg).T
-                # A slide may not stretch an edge of Gamma_h beyond its cap.
-                cnt = cap_ptr[G + 1] - cap_ptr[G]
-                cfirst = np.cumsum(cnt) - cnt
-                ce = np.repeat(cap_ptr[G] - cfirst, cnt) + np.arange(cnt.sum())
-                cr = np.repeat(np.arange(len(G)), cnt)
-                w = cap_w[ce]
-                dx, dy, dz = pcx[:, cr] - yc[0][w], pcy[:, cr] - yc[1][w], pcz[:, cr] - yc[2][w]
-                long = dx * dx + dy * dy + dz * dz > cap_len2[ce]  # (ns, cap rows)
-                has = np.flatnonzero(cnt > 0)
-                if len(has):
-                    over = np.logical_or.reduceat(long, cfirst[has], axis=1)
-                    qsg[has] = np.where(over.T, -1.0, qsg[has])
-                qsg = _rows(G, slice(None), qsg, "min")
-                bg = np.argmax(qsg >= qsg.max(axis=1, initial=-np.inf)[:, None] - TIE, axis=1)
-                rows = np.arange(len(G))
-                qb[gi] = qsg[rows, bg]
-                gain[gi] = qb[gi] > q0[gi] + TIE
-                new[gi] = pp[rows, bg]
-                tb[gi] = tg[rows, bg]
-                slid = gain[gi]
-                nrm[verts[G[slid]]] = pn[rows, bg][slid]
-                qnew[eg] = qg[bg[rg], np.arange(len(eg))]
-            win = S[gain]
-            y[verts[win]] = new[gain]
-            for i in range(3):
-                yc[i][verts[win]] = new[gain, i]
-            moved_e = gain[rE]
-            qcell[cell_idx[E[moved_e]]] = qnew[moved_e]
-            changed[cell_idx[E[moved_e]]] = True
-            # The step follows the accepted one; a vertex that gained goes on.
-            step[win] = np.clip(1.5 * np.abs(tb[gain]), hmin[win], hmax[win])
+            win = search.visit(S, E, sweep * ncol + k, changed)
             again[win] = True
             moves += int(np.count_nonzero(win < sub.size_local))
         # The neighbours of the vertices moved in this sweep are worked on again.
@@ -504,8 +295,309 @@ def relax_tetrahedra(
         num_moves += moves
         if moves == 0:
             break
+    gamma_v = on_gamma[verts]
     slid_v = verts[gamma_v]
     slid_v = slid_v[np.any(y[slid_v] != y0[slid_v], axis=1)]
-    xp[slid_v] = y[slid_v] + phi[slid_v, None] * nrm[slid_v]
+    xp[slid_v] = y[slid_v] + phi[slid_v, None] * search.nrm[slid_v]
     moved = np.any(y != x0, axis=1)
     return Relaxation(y, xp, moved, num_moves, done)
+
+
+class _TetStars:
+    """The tetrahedra around the movable vertices as star entries, with their qualities.
+
+    One entry per (movable vertex ``p``, tetrahedron of ``p``) with the opposite facet
+    ``(a, b, c)`` ordered so that ``(p, a, b, c)`` is positively oriented while ``p`` stays
+    on the cell's side, sorted by colour and vertex: each colour is a slice, each vertex a
+    segment of it. Degenerate tetrahedra (no orientation to keep) rate -1. The quality of
+    each tetrahedron (:attr:`qcell`) is rated once here (from one of its entries), then set
+    by the move that changes it. Edges of Gamma_h (both ends on Gamma) may not grow beyond
+    :data:`relax.GAMMA_EDGE_MAX` ``h`` (or their length after ``M_h``, if longer): one row
+    per (vertex on Gamma, neighbour on Gamma), sorted by the vertex.
+    """
+
+    def __init__(
+        self,
+        y: Float,
+        cells: Int,
+        csub: Int,
+        colour: Int,
+        ncol: int,
+        verts: Int,
+        on_gamma: Bool,
+        h: Float,
+    ) -> None:
+        m = len(verts)
+        self.y = y  # the relaxation's current positions (moves write into it)
+        cell_idx, corner = np.nonzero(csub >= 0)  # sorted by cell
+        ev = csub[cell_idx, corner]
+        key = colour[ev] * max(m, 1) + ev
+        if (ncol + 1) * max(m, 1) * max(len(cells), 1) < 2**62:  # unique keys: a faster sort
+            order = np.argsort(key * len(cells) + cell_idx)
+        else:
+            order = np.argsort(key, kind="stable")
+        inv = np.empty_like(order)
+        inv[order] = np.arange(len(order))
+        first = inv[np.flatnonzero(np.diff(cell_idx, prepend=-1))]  # an entry of each cell
+        cell_idx, corner, ev = cell_idx[order], corner[order], ev[order]
+        orient = np.sign(tet.signed_volumes(y, cells))
+        eo = orient[cell_idx]
+        f = cells[:, tet.FACETS][cell_idx, corner]
+        neg = eo < 0
+        f[neg] = f[neg][:, [0, 2, 1]]
+        self.f0, self.f1, self.f2 = (np.ascontiguousarray(f[:, i]) for i in range(3))
+        self.flat = eo == 0  # no orientation to keep: rated -1 whatever the position
+        self.cell_idx, self.ev, self.pv = cell_idx, ev, verts[ev]
+        # The caps of the edges of Gamma_h.
+        gv = np.concatenate([ev] * 3)
+        gw = np.concatenate([self.f0, self.f1, self.f2])
+        both = on_gamma[verts[gv]] & on_gamma[gw]
+        key = np.sort(gv[both] * len(y) + gw[both])
+        key = key[np.diff(key, prepend=-1) != 0]
+        self.cap_v, self.cap_w = key // len(y), key % len(y)
+        length = np.sqrt(((y[verts[self.cap_v]] - y[self.cap_w]) ** 2).sum(axis=1))
+        hmax_e = np.maximum(h[verts[self.cap_v]], h[self.cap_w])
+        self.cap_len2 = (np.maximum(GAMMA_EDGE_MAX * hmax_e, length) * (1.0 + TIE)) ** 2
+        self.cap_ptr = np.searchsorted(self.cap_v, np.arange(m + 1))  # each vertex's rows
+        self.yc = (y[:, 0].copy(), y[:, 1].copy(), y[:, 2].copy())  # y's coordinates
+        self.qcell = np.full(len(cells), -1.0)
+        _, _, _, s, L = self.terms(first)
+        r = np.cbrt(s)
+        self.qcell[cell_idx[first]] = np.where((s > 0.0) & ~self.flat[first], r * r / L, -1.0)
+
+    def terms(self, E: Int) -> tuple:
+        """:func:`star_terms` of the entries ``E`` at the current positions."""
+        return star_terms(self.yc, self.pv[E], self.f0[E], self.f1[E], self.f2[E])
+
+
+class _Directional:
+    """The directional search of :func:`relax_tetrahedra`: one visit of a colour's vertices.
+
+    Each vertex to work on (its worst tetrahedron below :data:`ACTIVE_BELOW`) takes its
+    ascent direction, the best of :data:`LINE_STEPS` along it, the compass where it is stuck
+    (inside vertices) or projected slides (vertices on Gamma), and moves if that beats
+    staying by more than ``TIE``; its step follows the accepted one.
+    """
+
+    def __init__(
+        self,
+        comm: MPI.Comm,
+        sub: _Sub,
+        closest_normal: Callable[[Float], tuple[Float, Float]],
+        stars: _TetStars,
+        normal: Float,
+        on_gamma: Bool,
+        h: Float,
+    ) -> None:
+        self.comm, self.sub, self.closest_normal, self.stars = comm, sub, closest_normal, stars
+        verts = sub.vertices
+        self.gamma_v = on_gamma[verts]
+        self.nrm = normal.copy()  # normals at the current positions of the vertices on Gamma
+        self.step = INITIAL_STEP * h[verts]
+        self.hmax = MAX_STEP * h[verts]
+        self.hmin = MIN_STEP * h[verts]
+        self.rowof = np.zeros(len(verts), dtype=np.int64)  # scratch: the row of each vertex
+
+    def _rows(self, S: Int, at: Int | slice, vals: Float, op: str, fill: float = np.inf) -> Float:
+        """Per-vertex values ``vals`` at rows ``at`` of ``S`` (``fill`` elsewhere), reduced
+        over the ranks with ``op``: one row per vertex of ``S``."""
+        out = np.full((len(S),) + vals.shape[1:], fill)
+        out[at] = vals
+        sub = self.sub
+        if sub.map is None:
+            return out
+        every = np.full((len(sub.vertices),) + vals.shape[1:], fill)
+        every[S] = out
+        return sub.reduce(every, op)[S]
+
+    def visit(self, S: Int, E: Int, turn: int, changed: Bool) -> Int:
+        """Work on the vertices ``S`` of one colour, whose entries are ``E`` (collective):
+        move those that gain, mark the cells they change in ``changed``, return them.
+        ``turn`` numbers the visit (it turns the compass directions)."""
+        st, ev, cell_idx = self.stars, self.stars.ev, self.stars.cell_idx
+        # The worst tetrahedron of each vertex's star (per row of S).
+        vE = ev[E]
+        self.rowof[S] = np.arange(len(S))
+        rE = self.rowof[vE]
+        starts = np.flatnonzero(np.diff(rE, prepend=-1))
+        qv = self._rows(S, rE[starts], _segment_min(st.qcell[cell_idx[E]], starts), "min")
+        work = (qv < ACTIVE_BELOW) & (qv > -1.0)
+        # Only the vertices to work on and their entries, from here.
+        keep = work[rE]
+        E, S, q0 = E[keep], S[work], qv[work]
+        v = _Visit(S, E, q0, self.rowof, ev, st.terms(E), st.qcell[cell_idx[E]])
+        self._direction(v)
+        self._line(v)
+        stuck = ~v.gain & ~self.gamma_v[S]
+        if self.comm.allreduce(bool(stuck.any()), op=MPI.LOR) and len(COMPASS_STEPS):
+            self._compass(v, stuck, turn)
+        gi = np.flatnonzero(self.gamma_v[S] & (v.dn > 0.0))
+        if self.comm.allreduce(len(gi) > 0, op=MPI.LOR):
+            self._slides(v, gi, turn)
+        return self._apply(v, changed)
+
+    def _direction(self, v: _Visit) -> None:
+        """The ascent direction of each star: the near-worst entries' unit gradients,
+        weighted, summed over the ranks; in the tangent plane for vertices on Gamma."""
+        (ux, uy, uz), (nx, ny, nz), _, s, L = v.terms
+        q, rE, S = v.q, v.rE, v.S
+        q0E = v.q0[rE]
+        nw = np.flatnonzero(q < q0E + NEAR_WORST)
+        wg = ascent_gradients(
+            q[nw], q0E[nw], s[nw], L[nw], (ux[nw], uy[nw], uz[nw]), (nx[nw], ny[nw], nz[nw])
+        )
+        dv = np.empty((len(S), 3))
+        for i, wgi in enumerate(wg):
+            dv[:, i] = np.bincount(rE[nw], weights=wgi, minlength=len(S))
+        dv = self._rows(S, slice(None), dv, "sum", 0.0)
+        gs = np.flatnonzero(self.gamma_v[S])
+        if len(gs):  # in the tangent plane
+            nn = self.nrm[self.sub.vertices[S[gs]]]
+            dv[gs] -= (dv[gs] * nn).sum(axis=1)[:, None] * nn
+        dvx, dvy, dvz = dv[:, 0], dv[:, 1], dv[:, 2]
+        v.dn = np.sqrt(dvx * dvx + dvy * dvy + dvz * dvz)
+        dv /= np.where(v.dn > 0.0, v.dn, 1.0)[:, None]
+        v.dv = dv
+
+    def _line(self, v: _Visit) -> None:
+        """The worst quality along each direction at :data:`LINE_STEPS` times the step; the
+        first step within ``TIE`` of the best, a gain if it beats staying by ``> TIE``."""
+        (ux, uy, uz), (nx, ny, nz), _, s, L = v.terms
+        rE, S, dv = v.rE, v.S, v.dv
+        dx, dy, dz = dv[:, 0][rE], dv[:, 1][rE], dv[:, 2][rE]
+        sig = dx * nx + dy * ny + dz * nz
+        beta2 = dx * ux + dy * uy + dz * uz
+        beta2 *= 2.0
+        t = LINE_STEPS[:, None] * self.step[v.vE][None]  # (steps, entries)
+        qt = line_quality(s, L, sig, beta2, t)  # (caps: rated below, on Gamma)
+        qs = self._rows(S, rE[v.starts], _segment_min(qt, v.starts).T, "min")
+        best = np.argmax(qs >= qs.max(axis=1, initial=-np.inf)[:, None] - TIE, axis=1)
+        v.qb = qs[np.arange(len(S)), best]
+        v.tb = LINE_STEPS[best] * self.step[S]
+        v.gain = (v.qb > v.q0 + TIE) & (v.dn > 0.0)
+        v.new = self.stars.y[self.sub.vertices[S]] + v.tb[:, None] * dv
+        # The entries' qualities at each vertex's chosen candidate.
+        v.qnew = qt[best[rE], np.arange(len(v.E))]
+
+    def _compass(self, v: _Visit, stuck: Bool, turn: int) -> None:
+        """Inside vertices stuck along their direction (a kink of three or more worst
+        tetrahedra): :data:`COMPASS` directions at :data:`COMPASS_STEPS` times the step."""
+        (ux, uy, uz), (nx, ny, nz), _, s, L = v.terms
+        rE, S = v.rE, v.S
+        cs = np.flatnonzero(stuck[rE])
+        dirs = tet.directions(COMPASS, turn)
+        sx, sy, sz = (a[cs] for a in (ux, uy, uz))
+        sig = dirs[:, 0, None] * nx[cs] + dirs[:, 1, None] * ny[cs] + dirs[:, 2, None] * nz[cs]
+        beta2 = 2.0 * (dirs[:, 0, None] * sx + dirs[:, 1, None] * sy + dirs[:, 2, None] * sz)
+        tc = COMPASS_STEPS[:, None, None] * self.step[v.vE[cs]][None, None]  # (ns, 1, n)
+        qc = line_quality(s[cs], L[cs], sig[None], beta2[None], tc)
+        qc = qc.reshape(COMPASS * len(COMPASS_STEPS), len(cs))  # (the same on all ranks)
+        rc = rE[cs]
+        sc = np.flatnonzero(np.diff(rc, prepend=-1))
+        qsc = self._rows(S, rc[sc], _segment_min(qc, sc).T, "min")
+        bc = np.argmax(qsc >= qsc.max(axis=1, initial=-np.inf)[:, None] - TIE, axis=1)
+        qbc = qsc[np.arange(len(S)), bc]
+        take = stuck & (qbc > v.q0 + TIE)
+        jc, ic = np.divmod(bc, COMPASS)
+        tcb = COMPASS_STEPS[jc] * self.step[S]
+        v.gain |= take
+        v.new[take] = self.stars.y[self.sub.vertices[S[take]]] + (tcb[:, None] * dirs[ic])[take]
+        v.tb[take] = tcb[take]
+        v.qb[take] = qbc[take]
+        tk = take[rc]
+        v.qnew[cs[tk]] = qc[bc[rc[tk]], np.flatnonzero(tk)]
+
+    def _slides(self, v: _Visit, gi: Int, turn: int) -> None:
+        """Vertices on Gamma (rows ``gi`` of the visit): fractions of the best step and
+        :data:`SLIDES` tangent directions, projected onto Gamma and rated exactly; a slide
+        may not stretch an edge of Gamma_h beyond its cap."""
+        st = self.stars
+        (ux, uy, uz), (nx, ny, nz), lsq, _, _ = v.terms
+        verts, rE, S, E = self.sub.vertices, v.rE, v.S, v.E
+        G = S[gi]
+        yG = st.y[verts[G]]
+        tg = v.tb[gi, None] * SLIDE_STEPS[None]
+        pc = yG[:, None, :] + tg[..., None] * v.dv[gi][:, None, :]
+        if SLIDES:  # and a compass in the tangent plane at the current step
+            td = tet.tangent_directions(self.nrm[verts[G]], SLIDES, turn)
+            pc = np.concatenate([pc, yG[:, None, :] + self.step[G, None, None] * td], axis=1)
+            tg = np.concatenate([tg, np.repeat(self.step[G, None], SLIDES, axis=1)], axis=1)
+        ns = pc.shape[1]
+        pp, pn = collective_call(
+            self.comm, "closest-point projection", self.closest_normal, pc.reshape(-1, 3)
+        )
+        pp, pn = pp.reshape(len(G), ns, 3), pn.reshape(len(G), ns, 3)
+        gpos = np.full(len(S), -1, dtype=np.int64)
+        gpos[gi] = np.arange(len(G))
+        eg = np.flatnonzero(gpos[rE] >= 0)
+        rg = gpos[rE[eg]]
+        pcx, pcy, pcz = (np.ascontiguousarray(pp[..., i].T) for i in range(3))
+        ip = st.pv[E[eg]]
+        yc = st.yc
+        face = tet.StarFaces(
+            *(a[None] for a in (yc[0][ip] - ux[eg], yc[1][ip] - uy[eg], yc[2][ip] - uz[eg],
+                                nx[eg], ny[eg], nz[eg], lsq[eg]))
+        )  # fmt: skip
+        qg = tet.star_quality(pcx[:, rg], pcy[:, rg], pcz[:, rg], face)  # (ns, entries)
+        qg[:, st.flat[E[eg]]] = -1.0
+        sg = np.flatnonzero(np.diff(rg, prepend=-1))
+        qsg = np.full((len(G), ns), np.inf)
+        if len(sg):
+            qsg[rg[sg]] = _segment_min(qg, sg).T
+        # A slide may not stretch an edge of Gamma_h beyond its cap.
+        cnt = st.cap_ptr[G + 1] - st.cap_ptr[G]
+        cfirst = np.cumsum(cnt) - cnt
+        ce = np.repeat(st.cap_ptr[G] - cfirst, cnt) + np.arange(cnt.sum())
+        cr = np.repeat(np.arange(len(G)), cnt)
+        w = st.cap_w[ce]
+        dx, dy, dz = pcx[:, cr] - yc[0][w], pcy[:, cr] - yc[1][w], pcz[:, cr] - yc[2][w]
+        long = dx * dx + dy * dy + dz * dz > st.cap_len2[ce]  # (ns, cap rows)
+        has = np.flatnonzero(cnt > 0)
+        if len(has):
+            over = np.logical_or.reduceat(long, cfirst[has], axis=1)
+            qsg[has] = np.where(over.T, -1.0, qsg[has])
+        qsg = self._rows(G, slice(None), qsg, "min")
+        bg = np.argmax(qsg >= qsg.max(axis=1, initial=-np.inf)[:, None] - TIE, axis=1)
+        rows = np.arange(len(G))
+        v.qb[gi] = qsg[rows, bg]
+        v.gain[gi] = v.qb[gi] > v.q0[gi] + TIE
+        v.new[gi] = pp[rows, bg]
+        v.tb[gi] = tg[rows, bg]
+        slid = v.gain[gi]
+        self.nrm[verts[G[slid]]] = pn[rows, bg][slid]
+        v.qnew[eg] = qg[bg[rg], np.arange(len(eg))]
+
+    def _apply(self, v: _Visit, changed: Bool) -> Int:
+        """Move the vertices that gain, set the qualities of their tetrahedra, and let the
+        step follow the accepted one; return the movers."""
+        st, verts, gain = self.stars, self.sub.vertices, v.gain
+        win = v.S[gain]
+        st.y[verts[win]] = v.new[gain]
+        for i in range(3):
+            st.yc[i][verts[win]] = v.new[gain, i]
+        moved_e = gain[v.rE]
+        st.qcell[st.cell_idx[v.E[moved_e]]] = v.qnew[moved_e]
+        changed[st.cell_idx[v.E[moved_e]]] = True
+        self.step[win] = np.clip(1.5 * np.abs(v.tb[gain]), self.hmin[win], self.hmax[win])
+        return win
+
+
+class _Visit:
+    """The arrays of one visit of :class:`_Directional` (the vertices ``S`` worked on, their
+    entries ``E``, rows, star terms, and the candidate chosen so far)."""
+
+    def __init__(
+        self, S: Int, E: Int, q0: Float, rowof: Int, ev: Int, terms: tuple, q: Float
+    ) -> None:
+        self.S, self.E, self.q0, self.terms, self.q = S, E, q0, terms, q
+        self.vE = ev[E]
+        rowof[S] = np.arange(len(S))
+        self.rE = rowof[self.vE]
+        self.starts = np.flatnonzero(np.diff(self.rE, prepend=-1))
+        self.dv = np.zeros((len(S), 3))
+        self.dn = np.zeros(len(S))
+        self.qb = np.zeros(len(S))
+        self.tb = np.zeros(len(S))
+        self.gain = np.zeros(len(S), dtype=bool)
+        self.new = np.zeros((len(S), 3))
+        self.qnew = np.zeros(len(E))
