@@ -1,0 +1,46 @@
+"""``benchmarks/dfg_vs_gmsh.py --quick``: the DFG demo's solver on gmsh and universal meshes
+at equal dofs (skipped without gmsh); its JSON and table, no timing or accuracy asserts
+beyond what any mesh of ~1e4 dofs gives."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+
+import pytest
+from conftest import ROOT, run_mpi
+
+REFERENCE = {"c_D": 5.57953523384, "c_L": 0.010618948146, "delta_p": 0.11752016697}
+
+
+@pytest.mark.skip_in_parallel
+@pytest.mark.skipif(importlib.util.find_spec("gmsh") is None, reason="gmsh not installed")
+def test_dfg_vs_gmsh_quick(tmp_path):
+    out_json = tmp_path / "dfg.json"
+    script = str(ROOT / "benchmarks" / "dfg_vs_gmsh.py")
+    out = run_mpi(1, [script, "--quick", "--out", str(out_json)], timeout=600).stdout
+    summary = json.loads(out_json.read_text())
+    rows = summary["rows"]
+    variants = list(summary["variants"])
+    meshes = ["gmsh", *summary["families"]]
+    # level 0 only: every gmsh variant, each followed by its universal meshes
+    assert [(r["variant"], r["mesh"]) for r in rows] == [(v, m) for v in variants for m in meshes]
+    for r in rows:
+        assert r["level"] == 0 and r["mesh_s"] > 0 and r["solve_s"] > 0
+        assert 2 <= r["newton_iterations"] <= 8, r
+        for key, value in REFERENCE.items():
+            assert r[f"err_{key}"] == pytest.approx((r[key] - value) / value)
+        # ~1e4 dofs: c_D within 1e-3, c_L and delta_p within a few percent (a wrong force
+        # scaling or sign, or a wrong boundary, is off by far more)
+        assert abs(r["err_c_D"]) < 1e-3 and abs(r["err_c_L"]) < 0.5, r
+        assert abs(r["err_delta_p"]) < 0.05, r
+    for g in (r for r in rows if r["mesh"] == "gmsh"):
+        assert "generate_s" in g and "model_to_mesh_s" in g
+        for u in rows:
+            if u["variant"] == g["variant"] and u["mesh"] == "universal":
+                # the demo's field: equal dofs within the match (2 %); the geometry's own
+                # sizing (before) only as close as its jumps allow
+                assert abs(u["n_dofs"] / g["n_dofs"] - 1) <= summary["match"], (g, u)
+    # the side-by-side table: one line per gmsh mesh
+    table = [line for line in out.splitlines() if line.startswith("| 0 |")]
+    assert len(table) == len(variants), out
