@@ -81,7 +81,9 @@ class ConformingMesh:
     """
 
     mesh: dmesh.Mesh
-    """Conforming mesh with degree-1 geometry (vertices at ``M_h`` images)."""
+    """Conforming mesh with degree-1 geometry (vertices at ``M_h`` images). In parallel it
+    has the background's shared-facet ghost cells (the kept ones), so interior facet
+    integrals (``dS``: jumps, error indicators, DG forms) assemble on any number of ranks."""
     background: dmesh.Mesh
     boundary: Boundary
     cell_map: npt.NDArray[np.int32]
@@ -724,7 +726,7 @@ class UniversalMesh:
         """
         sm = self.straight_map(boundary)
         t3 = time.perf_counter()
-        kc = np.flatnonzero(sm.kept[: self._nco]).astype(np.int32)
+        kc = np.flatnonzero(sm.kept).astype(np.int32)  # owned and ghost: shared-facet ghosts
         tdim = self.tdim
         sub, cell_emap, vertex_emap, node_map = dmesh.create_submesh(self.background, tdim, kc)
         sub.geometry.x[:, :tdim] = sm.y[self._n2v[node_map]]

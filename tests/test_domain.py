@@ -304,3 +304,26 @@ def test_curved_mesh_wants_a_conforming_mesh():
     cm = du.conform(du.equilateral_mesh(comm, [[-1, -1], [1, 1]], 0.2), du.Circle((0, 0), 0.6))
     with pytest.raises(TypeError, match="needs the ConformingMesh returned by conform"):
         du.curved_mesh(cm.mesh, 2)
+
+
+def _interior_facet_measure(c: MPI.Comm) -> tuple[float, float]:
+    """Total length of the interior facets of a curved mesh_domain mesh, and the sum of the
+    jumps of a discontinuous field across them (interior facet integrals, collective)."""
+    md = du.mesh_domain(c, du.Circle((0.01, 0.02), 1.0), 0.3, degree=2)
+    msh = md.mesh
+    DG0 = fem.functionspace(msh, ("DG", 0))
+    f = fem.Function(DG0)
+    f.interpolate(lambda x: np.floor(4 * x[0]))  # jumps across the lines x = k / 4
+    length = fem.assemble_scalar(fem.form(1.0 * ufl.dS(msh)))
+    jumps = fem.assemble_scalar(fem.form(abs(ufl.jump(f)) * ufl.dS(msh)))
+    return c.allreduce(length, op=MPI.SUM), c.allreduce(jumps, op=MPI.SUM)
+
+
+@pytest.mark.mpi
+@needs_ranks(2)
+def test_interior_facet_integrals_in_parallel():
+    """The meshes have shared-facet ghosts, as DOLFINx needs for ``dS`` integrals (jump
+    terms, error indicators, DG forms): the same values as on one rank (rounding of sums
+    in another order)."""
+    got, ref = _interior_facet_measure(comm), _interior_facet_measure(MPI.COMM_SELF)
+    assert got == pytest.approx(ref, rel=1e-12)
