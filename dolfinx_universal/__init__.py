@@ -31,7 +31,7 @@ from .moving import MovingDomain
 from .moving_problem import MovingLinearProblem, MovingStokes
 from .quality import quality_report
 from .relax import relax_vertices
-from .sizing import box_size, refine_size, threshold
+from .sizing import box_size, mark_cells, refine_size, threshold
 from .surfaces import Ellipsoid, ImplicitSurface, Sphere, Surface, Torus
 from .validation import MeshingError
 
@@ -77,6 +77,7 @@ __all__ = [
     "graded_mesh",
     "graded_tet_mesh",
     "io",
+    "mark_cells",
     "mesh_domain",
     "positive_edges",
     "positively_cut",

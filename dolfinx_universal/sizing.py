@@ -26,6 +26,7 @@ __all__ = [
     "curve_samples",
     "feature_divisor",
     "feature_size",
+    "mark_cells",
     "medial_radius",
     "refine_size",
     "size_field",
@@ -965,6 +966,59 @@ class _Unbounded:
     def __call__(self, x: npt.ArrayLike) -> Float:
         h = np.asarray(self.field(np.asarray(x, dtype=np.float64)), dtype=np.float64)
         return np.where(h >= self.h_max, np.inf, h)
+
+
+def mark_cells(mesh: Any, indicators: npt.ArrayLike, fraction: float = 0.5) -> Int:
+    """Dörfler marking: the fewest cells that hold ``fraction`` of the squared error.
+
+    The owned cells whose indicators are at least ``tau``, the largest value for which those
+    cells' squared indicators sum to at least ``fraction`` of the global sum (Dörfler 1996,
+    "A convergent adaptive algorithm for Poisson's equation", SIAM J. Numer. Anal. 33; the
+    bulk criterion of the usual adaptive loop: estimate, mark, refine, solve). Every cell
+    with the threshold's value is marked, so the set does not depend on the order of the
+    cells or on the partition (up to the rounding of the indicators themselves).
+    Collective: the indicators are gathered on rank 0 to find ``tau``.
+
+    Parameters
+    ----------
+    mesh
+        The mesh (its communicator and owned cells).
+    indicators
+        Error indicators ``eta_K >= 0`` of the owned cells ``(num_owned,)`` (or of the owned
+        and ghost cells: the ghosts are ignored).
+    fraction
+        Dörfler's ``theta`` in ``(0, 1]``.
+
+    Returns
+    -------
+    The marked owned cells (local indices) ``(k,)``: give them to :func:`refine_size`.
+    """
+    fraction = float(fraction)
+    if not (0 < fraction <= 1):
+        raise ValueError(f"fraction must be in (0, 1], got {fraction}")
+    tdim = mesh.topology.dim
+    n = mesh.topology.index_map(tdim).size_local
+    eta = np.asarray(indicators, dtype=np.float64).reshape(-1)
+    if len(eta) < n:
+        raise ValueError(f"indicators must have one value per owned cell ({n}), got {len(eta)}")
+    eta = eta[:n]
+    comm = mesh.comm
+    bad = bool(np.any(~(eta >= 0)) | np.any(~np.isfinite(eta)))
+    if comm.allreduce(bad, op=MPI.LOR):
+        raise ValueError("indicators must be finite and >= 0")
+    gathered = comm.gather(eta, root=0)
+    tau = None
+    if comm.rank == 0:
+        assert gathered is not None
+        values = np.sort(np.concatenate(gathered))[::-1]
+        if len(values) == 0 or values[0] == 0.0:
+            tau = np.inf  # no error anywhere: nothing to mark
+        else:
+            total = np.cumsum(values * values)
+            k = int(np.searchsorted(total, fraction * total[-1] * (1 - 1e-12)))
+            tau = float(values[min(k, len(values) - 1)])
+    tau = comm.bcast(tau, root=0)
+    return np.flatnonzero(eta >= tau).astype(np.int32)
 
 
 class _GradedSources:

@@ -218,3 +218,43 @@ def test_refine_size_does_not_depend_on_the_partition():
     sources = [f.field.points for f in fields]
     assert len(sources[0]) == len(sources[1])  # each marked cell once
     assert cKDTree(sources[1]).query(sources[0])[0].max() < 1e-12
+
+
+# ----------------------------------------------------------------------------- marking
+def test_mark_cells_is_doerfler():
+    """The fewest cells holding the fraction of sum eta^2: the marked cells reach it, and
+    without the smallest marked one (every cell at the threshold value) they would not."""
+    msh = du.mesh_domain(MPI.COMM_SELF, CHANNEL, 0.1, box=BOX).mesh
+    n = msh.topology.index_map(2).size_local
+    eta = np.random.default_rng(3).random(n) ** 4
+    for theta in (0.1, 0.5, 0.9, 1.0):
+        marked = du.mark_cells(msh, eta, theta)
+        total, got = np.sum(eta**2), np.sum(eta[marked] ** 2)
+        assert got >= theta * total * (1 - 1e-12)
+        tau = eta[marked].min()
+        assert np.array_equal(np.sort(marked), np.flatnonzero(eta >= tau))
+        assert got - np.sum(eta[eta == tau] ** 2) < theta * total
+    ties = np.ones(n)  # all equal: all marked (none can be told apart)
+    assert len(du.mark_cells(msh, ties, 0.3)) == n
+    assert len(du.mark_cells(msh, np.zeros(n), 0.5)) == 0  # no error: nothing to refine
+    with pytest.raises(ValueError, match="fraction"):
+        du.mark_cells(msh, eta, 0.0)
+    with pytest.raises(ValueError, match="finite and >= 0"):
+        du.mark_cells(msh, -eta, 0.5)
+    with pytest.raises(ValueError, match="one value per owned cell"):
+        du.mark_cells(msh, eta[:-1], 0.5)
+
+
+@pytest.mark.mpi
+@needs_ranks(2)
+def test_mark_cells_does_not_depend_on_the_partition():
+    """Indicators that are a function of the cell (its midpoint): the same cells marked."""
+    marked_mid = []
+    for c in (comm, MPI.COMM_SELF):
+        msh = du.mesh_domain(c, CHANNEL, 0.1, box=BOX).mesh
+        mid, _ = cell_data(msh)
+        eta = np.exp(-20 * np.linalg.norm(mid - [0.3, 0.2], axis=1))
+        marked = du.mark_cells(msh, eta, 0.5)
+        marked_mid.append(np.concatenate(c.allgather(mid[marked])))
+    a, b = marked_mid
+    assert len(a) == len(b) and cKDTree(b).query(a)[0].max() < 1e-12
