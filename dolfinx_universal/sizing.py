@@ -948,24 +948,47 @@ def refine_size(
             raise ValueError("refine_size: no cell is marked and no size field is given")
         return size_field
     h_max = 2.0 * max(h_max, float(sizes.max()))
-    field: SizeFunction
-    if gdim == 2:
-        field = SizeField(points, sizes, h_max, gradation)
-    else:
-        field = _GradedSources(points, sizes, h_max, positive(gradation, "gradation"))
-    field = _Unbounded(field, h_max)
-    return field if size_field is None else _MinSize(size_field, field)
+    if isinstance(size_field, _Refined) and size_field.gradation == gradation:
+        # The sources of the earlier rounds and these in one set: one evaluation of their
+        # envelope instead of one per round (the same function: a minimum of envelopes of
+        # one gradation is the envelope of the union).
+        return _Refined(
+            size_field.base,
+            np.concatenate([size_field.points, points]),
+            np.concatenate([size_field.sizes, sizes]),
+            max(h_max, size_field.h_max),
+            gradation,
+        )
+    return _Refined(size_field, points, sizes, h_max, gradation)
 
 
-class _Unbounded:
-    """A field capped at ``h_max`` with the cap lifted: ``inf`` (no constraint) there."""
+class _Refined:
+    """:func:`refine_size`'s field: ``min(base(x), min_i(s_i + g |x - p_i|))``, the point
+    sources' envelope counting as no constraint (``inf``) where it reaches ``h_max``."""
 
-    def __init__(self, field: SizeFunction, h_max: float) -> None:
-        self.field, self.h_max = field, h_max
+    def __init__(
+        self,
+        base: SizeFunction | None,
+        points: Float,
+        sizes: Float,
+        h_max: float,
+        gradation: float,
+    ) -> None:
+        self.base, self.points, self.sizes = base, points, sizes
+        self.h_max, self.gradation = h_max, positive(gradation, "gradation")
+        self.sources: SizeFunction
+        if points.shape[1] == 2:
+            self.sources = SizeField(points, sizes, h_max, gradation)
+        else:
+            self.sources = _GradedSources(points, sizes, h_max, self.gradation)
 
     def __call__(self, x: npt.ArrayLike) -> Float:
-        h = np.asarray(self.field(np.asarray(x, dtype=np.float64)), dtype=np.float64)
-        return np.where(h >= self.h_max, np.inf, h)
+        p = _user_points(x)
+        h = np.asarray(self.sources(p), dtype=np.float64)
+        h = np.where(h >= self.h_max, np.inf, h)
+        if self.base is None:
+            return h
+        return np.minimum(np.asarray(self.base(p), dtype=np.float64).reshape(len(p)), h)
 
 
 def mark_cells(mesh: Any, indicators: npt.ArrayLike, fraction: float = 0.5) -> Int:
