@@ -19,6 +19,10 @@ MUMPS, c_D and c_L by the weak residual, Δp by point values of p_h) on
   sizing ``h = 0.08 s``, ``size_factor = 2 / s``). Their scale ``s`` is found by a search
   on the number of dofs (which costs one ``mesh_domain`` and the edge count per try): the
   secant step of ``dofs ~ s^-2`` inside a bracket, bisection where it leaves the bracket.
+  And ``adaptive``: the demo's adaptive loop (residual indicator, Dörfler marking,
+  ``refine_size``; run once from level 0 past the largest gmsh mesh) up to its last round
+  below the gmsh mesh's dofs, then one more refinement whose Dörfler fraction is found by
+  bisection to give those dofs (:func:`matched_adaptive`).
 
 For each mesh: the relative errors of c_D, c_L and Δp against the reference values, the
 meshing time (gmsh: ``generate(2)`` + ``setOrder(2)``, then ``model_to_mesh``; universal:
@@ -181,9 +185,42 @@ def geometry_mesh(scale: float, reach: float = 1.0) -> du.MeshedDomain:
     return du.mesh_domain(comm, DOMAIN, 0.08 * scale, degree=2, box=BOX, size_factor=2 / scale)
 
 
-FAMILIES = {"universal": universal_mesh, "geometry": geometry_mesh}
-"""Universal meshes matched to each gmsh mesh: the demo's size field, and the geometry's own
-sizing (the demo before the size field)."""
+FAMILIES = {"universal": universal_mesh, "geometry": geometry_mesh, "adaptive": None}
+"""Universal meshes matched to each gmsh mesh: the demo's size field, the geometry's own
+sizing (the demo before the size field), and the field of the demo's adaptive loop
+(:func:`adaptive_family`)."""
+
+ADAPTIVE: dict[str, list] = {"dofs": [], "rounds": []}
+"""The rounds of the demo's adaptive loop (run once, past the largest gmsh mesh's dofs)."""
+
+
+def matched_adaptive(target: int):
+    """The adaptive mesh with ``target`` dofs within :data:`MATCH`: the demo's loop up to
+    its last round below ``target``, then one more step whose Dörfler fraction (instead of
+    the loop's ``THETA``) is found by bisection so that the mesh has ``target`` dofs (the
+    dofs grow with the fraction: more cells marked). Returns ``(meshed domain, fraction,
+    1.0, seconds of its mesh_domain, tries)``, the closest found if no fraction matches."""
+    dofs = ADAPTIVE["dofs"]
+    k = max([i for i, d in enumerate(dofs) if d <= target] or [0])
+    last = ADAPTIVE["rounds"][k]
+    scale = demo.level_scale(0)
+    lo, hi = 0.0, 1.0
+    best: tuple = (math.inf,)
+    for tries in range(1, 31):
+        theta = 0.5 * (lo + hi)
+        marked = du.mark_cells(last.mesh, last.indicators, theta)
+        field = du.refine_size(last.mesh, marked, last.field)
+        t = time.perf_counter()
+        md = demo.adaptive_mesh(field, scale)
+        seconds = comm.allreduce(time.perf_counter() - t, op=MPI.MAX)
+        n = demo.n_dofs(md.mesh)
+        found = (md, theta, 1.0, seconds, tries)
+        if abs(n / target - 1) < best[0]:
+            best = (abs(n / target - 1), *found)
+        if abs(n / target - 1) <= MATCH:
+            return found
+        lo, hi = (theta, hi) if n < target else (lo, theta)
+    return best[1:]
 
 
 def matched_mesh(family: str, target: int, scale: float):
@@ -200,7 +237,10 @@ def matched_mesh(family: str, target: int, scale: float):
     (its band around the circle jumps a quadtree level at once, 17 % of the dofs at 3e4):
     there the closest mesh found is returned (the dofs are in the table); for the demo's
     field an error is raised."""
+    if family == "adaptive":
+        return matched_adaptive(target)
     make = FAMILIES[family]
+    assert make is not None
     lo, hi = 0.0, math.inf  # bracket of the knob: dofs(lo) > target > dofs(hi)
     reach = None  # None: searching the scale
     best: tuple = (math.inf,)
@@ -241,6 +281,11 @@ def matched_mesh(family: str, target: int, scale: float):
 
 # ----------------------------------------------------------------------------- study
 def run(levels: list[int]) -> list[dict]:
+    # The adaptive loop once, past the largest gmsh mesh (its dofs ~ 1e4 (0.72 / factor)^2).
+    most = 1.3e4 * (FACTORS[0] / FACTORS[max(levels)]) ** 2
+    adaptive_rows, rounds, _ = demo.adaptive_study(most, keep=True)
+    ADAPTIVE["dofs"] = [r["n_dofs"] for r in adaptive_rows]
+    ADAPTIVE["rounds"] = rounds
     rows = []
     guesses = {family: 1.0 for family in FAMILIES}
     for level in levels:
@@ -266,7 +311,11 @@ def run(levels: list[int]) -> list[dict]:
                 md, scale, reach, seconds, tries = matched_mesh(
                     family, q["n_dofs"], guesses[family]
                 )
-                guesses[family] = scale
+                knob = {"scale": scale, "reach": reach}
+                if family == "adaptive":  # the last step's Doerfler fraction, not a scale
+                    knob = {"last_fraction": scale}
+                else:
+                    guesses[family] = scale
                 tags = md.facet_tags
                 cyl = tags.find(du.IMMERSED)
                 qu, _ = demo.solve(md.mesh, tags.find(du.OUTER), cyl, f"{family}_{level}_{variant}")
@@ -280,8 +329,7 @@ def run(levels: list[int]) -> list[dict]:
                     "cylinder_edges": _count_owned(md.mesh, cyl),
                     "near_share": _near_share(md.mesh),
                     "mesh_s": seconds,
-                    "scale": scale,
-                    "reach": reach,
+                    **knob,
                     "search_tries": tries,
                 }
                 rows.append(row)
@@ -311,25 +359,27 @@ def report(row: dict) -> None:
 
 
 def markdown(rows: list[dict]) -> str:
-    """Side by side at equal dofs: one line per gmsh mesh and its two universal meshes."""
+    """Side by side at equal dofs: one line per gmsh mesh and its universal meshes (the
+    demo's field, the geometry's own sizing, the adaptive loop's field)."""
     lines = [
-        "| level | gmsh field | dofs gmsh / univ. / geometry | err c_D gmsh | univ. | geometry "
-        "| err c_L gmsh | univ. | geometry | err Δp gmsh | univ. | geometry "
-        "| mesh s gmsh | univ. | ratio | solve s gmsh | univ. |",
-        "|" + "---|" * 17,
+        "| level | gmsh field | dofs gmsh / univ. / geometry / adaptive | err c_D gmsh | univ. "
+        "| geometry | adaptive | err c_L gmsh | univ. | geometry | adaptive | err Δp gmsh "
+        "| univ. | geometry | adaptive | mesh s gmsh | univ. | ratio | solve s gmsh | univ. |",
+        "|" + "---|" * 20,
     ]
     for g in (r for r in rows if r["mesh"] == "gmsh"):
-        u, o = (
+        u, o, a = (
             next(
                 r
                 for r in rows
                 if r["mesh"] == m and r["level"] == g["level"] and r["variant"] == g["variant"]
             )
-            for m in ("universal", "geometry")
+            for m in ("universal", "geometry", "adaptive")
         )
-        cells = [str(g["level"]), g["variant"], f"{g['n_dofs']} / {u['n_dofs']} / {o['n_dofs']}"]
+        dofs = f"{g['n_dofs']} / {u['n_dofs']} / {o['n_dofs']} / {a['n_dofs']}"
+        cells = [str(g["level"]), g["variant"], dofs]
         for k in ("err_c_D", "err_c_L", "err_delta_p"):
-            cells += [f"{g[k]:+.1e}", f"{u[k]:+.1e}", f"{o[k]:+.1e}"]
+            cells += [f"{g[k]:+.1e}", f"{u[k]:+.1e}", f"{o[k]:+.1e}", f"{a[k]:+.1e}"]
         cells += [f"{g['mesh_s']:.2f}", f"{u['mesh_s']:.2f}", f"{g['mesh_s'] / u['mesh_s']:.1f}x"]
         cells += [f"{g['solve_s']:.1f}", f"{u['solve_s']:.1f}"]
         lines.append("| " + " | ".join(cells) + " |")
