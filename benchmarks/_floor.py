@@ -47,15 +47,18 @@ def three_blades() -> du.PolarCurve:
     return propeller()
 
 
-def propeller_demo():
-    """The module ``demos/stokes_propeller.py`` (its propeller and graded background)."""
-    spec = importlib.util.spec_from_file_location(
-        "_stokes_propeller_demo", ROOT / "demos" / "stokes_propeller.py"
-    )
+def load_demo(filename: str, name: str):
+    """The module ``demos/<filename>`` (its functions and constants), named ``name``."""
+    spec = importlib.util.spec_from_file_location(name, ROOT / "demos" / filename)
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def propeller_demo():
+    """The module ``demos/stokes_propeller.py`` (its propeller and graded background)."""
+    return load_demo("stokes_propeller.py", "_stokes_propeller_demo")
 
 
 def equilateral(comm: MPI.Comm, cells: float) -> dmesh.Mesh:

@@ -41,7 +41,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import math
 import os
@@ -56,24 +55,13 @@ from mpi4py import MPI
 
 import gmsh
 import numpy as np
+from _floor import load_demo
 from dolfinx.io import gmsh as dgmsh
 
-ROOT = Path(__file__).resolve().parents[1]
 comm = MPI.COMM_WORLD
 
 
-def _load_demo():
-    """``demos/dfg_benchmark.py`` as a module: its solver, mesh and constants."""
-    spec = importlib.util.spec_from_file_location(
-        "dfg_benchmark", ROOT / "demos" / "dfg_benchmark.py"
-    )
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-demo = _load_demo()
+demo = load_demo("dfg_benchmark.py", "dfg_benchmark")  # its solver, meshes and constants
 R, H = demo.radius, demo.height
 
 VARIANTS: dict[str, dict[str, float]] = {
