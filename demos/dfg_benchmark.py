@@ -620,7 +620,7 @@ def adaptive_table(rows: list[dict]) -> str:
 # every gmsh mesh (at $7 \cdot 10^5$: $5$ to $8 \cdot 10^{-9}$ against $2 \cdot 10^{-8}$
 # to $2 \cdot 10^{-7}$), and at $7 \cdot 10^5$ their lift error too ($7 \cdot 10^{-8}$ to
 # $1.3 \cdot 10^{-6}$ against $1.5 \cdot 10^{-6}$ to $8.8 \cdot 10^{-6}$); at
-# $8.6 \cdot 10^4$ and $2.4 \cdot 10^5$ the gmsh mesh graded like this demo's field has
+# $8.8 \cdot 10^4$ and $2.5 \cdot 10^5$ the gmsh mesh graded like this demo's field has
 # the smaller lift error. Meshing is 5.7 to 6.8 times faster than gmsh's generate and
 # `model_to_mesh` at $7 \cdot 10^5$ with the field, 4.5 to 5.9 times with the adaptive
 # field (README, "DFG per degree of freedom against gmsh", for the table).
