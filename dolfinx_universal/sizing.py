@@ -887,7 +887,9 @@ def refine_size(
     at the marked cells (twice as fine for the default ``factor``), and the domain is
     conformed to it (no remeshing). Collective: the marked cells of every rank are
     gathered, so that the field is the same on every rank (and does not depend on the
-    partition).
+    partition). Given the field of an earlier call, the sources of all rounds are kept in
+    one set (one evaluation of their envelope, not one per round). Marked cells are
+    usually chosen by :func:`mark_cells`.
 
     Parameters
     ----------
