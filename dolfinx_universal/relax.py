@@ -44,7 +44,7 @@ from mpi4py import MPI
 import numpy as np
 import numpy.typing as npt
 
-from ._geometry import Bool, Float, Int
+from ._geometry import Bool, Float, Int, rot90
 from .validation import collective_call, vertex_reduce
 
 if TYPE_CHECKING:
@@ -517,7 +517,7 @@ class _Compass:
         self.comm, self.sub, self.closest_normal, self.y = comm, sub, closest_normal, y
         verts = sub.vertices
         self.gamma = np.flatnonzero(on_gamma[verts])
-        self.tangent = normal[verts[self.gamma]] @ np.array([[0.0, 1.0], [-1.0, 0.0]])
+        self.tangent = rot90(normal[verts[self.gamma]])  # Omega on their left
         self.nrm = normal.copy()  # normals at the current positions of the vertices on Gamma
         self.step = INITIAL_STEP * h[verts]
         self.hmax = MAX_STEP * h[verts]
