@@ -36,6 +36,7 @@ __all__ = [
     "equilateral_mesh",
     "equilateral_triangulation",
     "ghosted_partitioner",
+    "largest_of_cells",
     "layout_partitioner",
     "refine_uniform",
     "vertex_sizes",
@@ -363,6 +364,21 @@ def _longest_edges(
     return np.sqrt(longest)
 
 
+def largest_of_cells(
+    imv: IndexMap, c2v: npt.NDArray[np.int32], values: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """At each vertex, the largest of ``values`` over its cells (collective).
+
+    ``values`` ``(m,)`` belong to the cells ``c2v`` ``(m, nv)`` of this rank (owned ones, or
+    owned and ghost); the maximum is taken over the ranks sharing a vertex, so every rank
+    gets the same value there. Vertices of no cell get 0. Returns ``(num_vertices,)``
+    (owned and ghost vertices of ``imv``).
+    """
+    out = np.zeros(imv.size_local + imv.num_ghosts)
+    np.maximum.at(out, c2v.ravel(), np.repeat(values, c2v.shape[1]))
+    return vertex_reduce(imv, out, "max")
+
+
 def vertex_sizes(
     imv: IndexMap,
     x: npt.NDArray[np.float64],
@@ -410,9 +426,7 @@ def vertex_sizes(
     if not local:
         hmax = comm.allreduce(float(diam.max()) if len(diam) else 0.0, op=MPI.MAX)
         return np.full(len(x), hmax)
-    hv = np.zeros(len(x))
-    np.maximum.at(hv, c2v[:num_owned].ravel(), np.repeat(diam, nv))
-    hv = vertex_reduce(imv, hv, "max")
+    hv = largest_of_cells(imv, c2v[:num_owned], diam)
     pair = np.sort(np.concatenate([c2v[:, list(p)] for p in pairs]), axis=1).astype(np.int64)
     # The distinct edges, one int each, by a sort (np.unique hashes: 100 times slower).
     key = np.sort(pair[:, 0] * len(x) + pair[:, 1])

@@ -911,7 +911,8 @@ def refine_size(
     -------
     The size field, a callable ``(n, gdim) -> (n,)``.
     """
-    from .validation import vertex_reduce
+    from .background import largest_of_cells
+    from .dimensions import cell_kernels
 
     factor = float(factor)
     if not (0 < factor <= 1):
@@ -923,27 +924,21 @@ def refine_size(
     marked = np.unique(np.asarray(cells, dtype=np.int64).reshape(-1))
     if len(marked) and (marked[0] < 0 or marked[-1] >= num_cells):
         raise ValueError(f"cells must be local cell indices in [0, {num_cells})")
-    # Each cell's vertices (the geometry's first tdim + 1 nodes, in the topology's order).
-    xv = mesh.geometry.x[mesh.geometry.dofmaps[0][:num_cells, : tdim + 1], :gdim]
-    diam = np.zeros(num_cells)
-    for i in range(tdim + 1):
-        for j in range(i + 1, tdim + 1):
-            diam = np.maximum(diam, np.sqrt(np.sum((xv[:, i] - xv[:, j]) ** 2, axis=1)))
+    # Each cell's vertices: the geometry's first tdim + 1 nodes, in the topology's order.
+    nodes = mesh.geometry.dofmaps[0][:num_cells, : tdim + 1]
+    diam = cell_kernels(tdim).cell_diameters(mesh.geometry.x, nodes)
     # The local mesh size at a marked cell: the longest edge of the cells around its
     # vertices (on a quadtree leaf, the leaf's longest edge, which its refinement halves;
     # a cell's own diameter is down to 0.75 of it, and half of that would split twice).
     top.create_connectivity(tdim, 0)
     c2v = top.connectivity(tdim, 0).array.reshape(-1, tdim + 1)[:num_cells]
-    imv = top.index_map(0)
-    vsize = np.zeros(imv.size_local + imv.num_ghosts)
-    np.maximum.at(vsize, c2v.ravel(), np.repeat(diam, tdim + 1))
-    vsize = vertex_reduce(imv, vsize, "max")
+    vsize = largest_of_cells(top.index_map(0), c2v, diam)
+    marked = marked[marked < cmap.size_local]  # each marked cell once, by its owner
     local_size = vsize[c2v[marked]].max(axis=1) if len(marked) else np.zeros(0)
-    owned = marked[marked < cmap.size_local]  # each marked cell once, by its owner
-    keep = np.isin(marked, owned)
+    centres = mesh.geometry.x[nodes[marked], :gdim].mean(axis=1)
     comm = mesh.comm
-    points = np.concatenate(comm.allgather(xv[marked[keep]].mean(axis=1))).reshape(-1, gdim)
-    sizes = np.concatenate(comm.allgather(factor * local_size[keep]))
+    points = np.concatenate(comm.allgather(centres)).reshape(-1, gdim)
+    sizes = np.concatenate(comm.allgather(factor * local_size))
     h_max = comm.allreduce(float(diam[: cmap.size_local].max(initial=0.0)), op=MPI.MAX)
     if len(points) == 0:  # nothing marked: the previous field
         if size_field is None:
