@@ -75,6 +75,17 @@ def run_mpi(nprocs: int, args: list[str], timeout: float = 300) -> subprocess.Co
     return proc
 
 
+def quick_runs(tmp_path_factory, demo: str, timeout: float = 300) -> dict[int, tuple[Path, dict]]:
+    """``{nprocs: (out folder, summary)}`` of ``demos/<demo> --quick`` run serially and on
+    two ranks (a demo test's module fixture)."""
+    result = {}
+    for nprocs in (1, 2):
+        out = tmp_path_factory.mktemp(f"{Path(demo).stem}_np{nprocs}")
+        run_mpi(nprocs, [str(ROOT / "demos" / demo), "--quick", "--out", str(out)], timeout)
+        result[nprocs] = out, json.loads((out / "summary.json").read_text())
+    return result
+
+
 def run_mpi_json(nprocs: int, script: str, out: Path, *args: str) -> dict:
     """Run ``tests/mpi/<script>`` writing JSON to ``out`` and return what it wrote."""
     run_mpi(nprocs, [str(ROOT / "tests" / "mpi" / script), str(out), *args])

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import json
 import sys
 
 import numpy as np
 import pytest
-from conftest import ROOT, run_mpi
+from conftest import ROOT, quick_runs
 
 ROW_KEYS = {
     "level",
@@ -29,10 +28,8 @@ REFERENCE = {"c_D": 5.57953523384, "c_L": 0.010618948146, "delta_p": 0.117520166
 def runs(tmp_path_factory) -> dict[int, dict]:
     """``{nprocs: summary}`` of ``--quick`` runs on 1 and 2 ranks."""
     out = {}
-    for nprocs in (1, 2):
-        folder = tmp_path_factory.mktemp(f"dfg{nprocs}")
-        run_mpi(nprocs, ["demos/dfg_benchmark.py", "--quick", "--out", str(folder)], timeout=300)
-        out[nprocs] = json.loads((folder / "summary.json").read_text())
+    for nprocs, (folder, summary) in quick_runs(tmp_path_factory, "dfg_benchmark.py").items():
+        out[nprocs] = summary
         for name in ("fields.png", "convergence.png", "adaptive_mesh.png"):
             assert (folder / name).stat().st_size > 10_000, name
     return out

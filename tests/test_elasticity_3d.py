@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import json
-
 import pytest
-from conftest import ROOT, run_mpi
+from conftest import quick_runs
 from test_demos import SUMMARY_KEYS, _same_run, _without_seconds
 
 ROW_KEYS = {
@@ -27,13 +25,7 @@ FIGURES = ("convergence.png", "shell_mesh.png")
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory) -> dict:
     """``{nprocs: (out folder, summary)}`` for one serial and one two-rank quick run."""
-    demo = str(ROOT / "demos" / "elasticity_3d.py")
-    result = {}
-    for nprocs in (1, 2):
-        out = tmp_path_factory.mktemp(f"elasticity_3d_np{nprocs}")
-        run_mpi(nprocs, [demo, "--quick", "--out", str(out)], timeout=300)
-        result[nprocs] = out, json.loads((out / "summary.json").read_text())
-    return result
+    return quick_runs(tmp_path_factory, "elasticity_3d.py")
 
 
 @pytest.mark.skip_in_parallel  # runs the demo under its own mpirun

@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
-from conftest import ROOT, run_mpi
+from conftest import quick_runs
 
 KEYS = {
     "steps",
@@ -33,13 +31,7 @@ def mirror_gap(angles_deg, torque) -> float:
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory) -> dict:
     """``{nprocs: (out folder, summary)}`` for one serial and one two-rank quick run."""
-    demo = str(ROOT / "demos" / "stokes_propeller.py")
-    result = {}
-    for nprocs in (1, 2):
-        out = tmp_path_factory.mktemp(f"stokes_np{nprocs}")
-        run_mpi(nprocs, [demo, "--quick", "--out", str(out)], timeout=300)
-        result[nprocs] = out, json.loads((out / "summary.json").read_text())
-    return result
+    return quick_runs(tmp_path_factory, "stokes_propeller.py")
 
 
 @pytest.mark.skip_in_parallel  # runs the demo under its own mpirun

@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import json
-
 import numpy as np
 import pytest
-from conftest import ROOT, run_mpi
+from conftest import quick_runs
 
 KEYS = {"rows", "rates", "off_centre", "solver_check", "seconds"}
 WRITTEN = {"parameters", "reference", "versions", "mpi_size"}  # demo_support.write_summary
@@ -41,13 +39,7 @@ def K(lam: float) -> float:
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory) -> dict:
     """``{nprocs: (out folder, summary)}`` for one serial and one two-rank quick run."""
-    demo = str(ROOT / "demos" / "stokes_sphere_3d.py")
-    result = {}
-    for nprocs in (1, 2):
-        out = tmp_path_factory.mktemp(f"stokes_sphere_np{nprocs}")
-        run_mpi(nprocs, [demo, "--quick", "--out", str(out)], timeout=600)
-        result[nprocs] = out, json.loads((out / "summary.json").read_text())
-    return result
+    return quick_runs(tmp_path_factory, "stokes_sphere_3d.py", timeout=600)
 
 
 @pytest.mark.skip_in_parallel  # runs the demo under its own mpirun
