@@ -114,7 +114,8 @@ def vertex_colours_graph(sub: _Sub, cells: Int, priority: Float) -> Int:
     src = np.concatenate([cells[:, i] for i, _ in pairs]).astype(np.int64)
     dst = np.concatenate([cells[:, j] for _, j in pairs]).astype(np.int64)
     keep = (src >= 0) & (dst >= 0)
-    src, dst = np.minimum(src[keep], dst[keep]), np.maximum(src[keep], dst[keep])
+    src, dst = src[keep], dst[keep]
+    src, dst = np.minimum(src, dst), np.maximum(src, dst)
     key = np.sort(src * m + dst)
     key = key[np.diff(key, prepend=-1) != 0]  # distinct edges, then both directions
     src, dst = key // m, key % m
@@ -340,18 +341,28 @@ class _TetStars:
         inv[order] = np.arange(len(order))
         first = inv[np.flatnonzero(np.diff(cell_idx, prepend=-1))]  # an entry of each cell
         cell_idx, corner, ev = cell_idx[order], corner[order], ev[order]
-        orient = np.sign(tet.signed_volumes(y, cells))
+        # The facet opposite each entry's vertex, by flat index (no (cells, 4, 3) copy).
+        flat_cells = np.ascontiguousarray(cells).reshape(-1)
+        base = 4 * cell_idx
+        f0, f1, f2 = (flat_cells[base + tet.FACETS[:, i][corner]] for i in range(3))
+        self.pv = verts[ev]
+        self.yc = (y[:, 0].copy(), y[:, 1].copy(), y[:, 2].copy())  # y's coordinates
+        # The orientation of each cell from one entry's 6 V (the sign of s); the entries of
+        # negatively oriented cells take their facet the other way round.
+        _, _, _, s, L = star_terms(self.yc, self.pv[first], f0[first], f1[first], f2[first])
+        orient = np.zeros(len(cells))
+        orient[cell_idx[first]] = np.sign(s)
         eo = orient[cell_idx]
-        f = cells[:, tet.FACETS][cell_idx, corner]
-        neg = eo < 0
-        f[neg] = f[neg][:, [0, 2, 1]]
-        self.f0, self.f1, self.f2 = (np.ascontiguousarray(f[:, i]) for i in range(3))
+        neg = np.flatnonzero(eo < 0)
+        f1[neg], f2[neg] = f2[neg], f1[neg]
+        self.f0, self.f1, self.f2 = f0, f1, f2
         self.flat = eo == 0  # no orientation to keep: rated -1 whatever the position
-        self.cell_idx, self.ev, self.pv = cell_idx, ev, verts[ev]
-        # The caps of the edges of Gamma_h.
-        gv = np.concatenate([ev] * 3)
-        gw = np.concatenate([self.f0, self.f1, self.f2])
-        both = on_gamma[verts[gv]] & on_gamma[gw]
+        self.cell_idx, self.ev = cell_idx, ev
+        # The caps of the edges of Gamma_h: entries at a vertex on Gamma, facet corners on it.
+        g = np.flatnonzero(on_gamma[self.pv])
+        gv = np.concatenate([ev[g]] * 3)
+        gw = np.concatenate([f0[g], f1[g], f2[g]])
+        both = on_gamma[gw]
         key = np.sort(gv[both] * len(y) + gw[both])
         key = key[np.diff(key, prepend=-1) != 0]
         self.cap_v, self.cap_w = key // len(y), key % len(y)
@@ -359,9 +370,10 @@ class _TetStars:
         hmax_e = np.maximum(h[verts[self.cap_v]], h[self.cap_w])
         self.cap_len2 = (np.maximum(GAMMA_EDGE_MAX * hmax_e, length) * (1.0 + TIE)) ** 2
         self.cap_ptr = np.searchsorted(self.cap_v, np.arange(m + 1))  # each vertex's rows
-        self.yc = (y[:, 0].copy(), y[:, 1].copy(), y[:, 2].copy())  # y's coordinates
         self.qcell = np.full(len(cells), -1.0)
-        _, _, _, s, L = self.terms(first)
+        turned = np.flatnonzero(s < 0.0)  # rated again, their facets turned
+        if len(turned):
+            _, _, _, s[turned], L[turned] = self.terms(first[turned])
         r = np.cbrt(s)
         self.qcell[cell_idx[first]] = np.where((s > 0.0) & ~self.flat[first], r * r / L, -1.0)
 
