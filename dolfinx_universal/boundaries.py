@@ -202,7 +202,7 @@ def _crossing_sign(p: Float, loops: Sequence[Float]) -> Float:
 
 
 def _candidates(
-    x: Float, tree: cKDTree, pts: Float, prev: Int, nxt: Int, reach: float
+    x: Float, tree: cKDTree, pts: Float, prev: Int, nxt: Int, reach: float, clear: Float
 ) -> tuple[Int, Int]:
     """Start samples for the exact projection of every point of ``x``.
 
@@ -215,17 +215,18 @@ def _candidates(
 
     Search: the samples within ``d_min + reach`` of most points are a few neighbours along the
     loop of the nearest sample. A window of :data:`_WINDOW` samples on each side of it is
-    searched directly, and a ball count of the k-d tree proves that no other sample is that
-    close (else the point goes on). The k nearest samples (k = 16, then 64) settle most
-    other points; the rest (far from Gamma) are searched exhaustively. The candidates do not
-    depend on the route.
+    searched directly, and the nearest sample's clearance ``clear``
+    (:func:`_window_clearance`), or else a ball count of the k-d tree, proves that no other
+    sample is that close (else the point goes on). The k nearest samples (k = 16, then 64)
+    settle most other points; the rest (far from Gamma) are searched exhaustively. The
+    candidates do not depend on the route.
     """
     ps: list[Int] = []
     ss: list[Int] = []
     m = len(pts)
     todo = np.arange(len(x))
     if len(x):
-        done, pi, si = _window_candidates(x, tree, pts, nxt, reach)
+        done, pi, si = _window_candidates(x, tree, pts, nxt, reach, clear)
         ps.append(pi)
         ss.append(si)
         todo = todo[~done]
@@ -258,8 +259,28 @@ _WINDOW = 16
 """Samples on each side of the nearest one searched directly by :func:`_candidates`."""
 
 
+def _window_clearance(tree: cKDTree, pts: Float, nxt: Int) -> Float:
+    """For each sample, a lower bound of its distance to the samples outside its window
+    (the :data:`_WINDOW` samples on each side along its loop, and itself) ``(n,)``.
+
+    From its ``2 _WINDOW + 5`` nearest samples: the distance to the nearest of them outside
+    the window, else to the farthest of them (every other sample is at least that far).
+    """
+    n, w = len(pts), _WINDOW
+    k = min(2 * w + 5, n)
+    d, j = tree.query(pts, k=k)
+    d, j = d.reshape(n, k), j.reshape(n, k)
+    ends = np.flatnonzero(nxt != np.arange(1, n + 1))  # last sample of each loop
+    loop = np.searchsorted(ends, np.arange(n))
+    size = (ends - np.concatenate([[-1], ends[:-1]]))[loop]
+    step = (j - np.arange(n)[:, None]) % size[:, None]
+    outside = (loop[j] != loop[:, None]) | ((step > w) & (step < size[:, None] - w))
+    first = np.argmax(outside, axis=1)
+    return np.where(outside.any(axis=1), d[np.arange(n), first], d[:, -1])
+
+
 def _window_candidates(
-    x: Float, tree: cKDTree, pts: Float, nxt: Int, reach: float
+    x: Float, tree: cKDTree, pts: Float, nxt: Int, reach: float, clear: Float
 ) -> tuple[Bool, Int, Int]:
     """The candidates of :func:`_candidates` for the points whose samples within reach all
     lie within :data:`_WINDOW` samples of the nearest one along its loop.
@@ -278,10 +299,17 @@ def _window_candidates(
     win = start[:, None] + (win - start[:, None]) % size[:, None]
     d = norm2(x[:, None, :] - pts[win])  # (points, 2 w + 3): the window and one more each side
     inner = d[:, 1:-1]
-    # A ball count, slightly enlarged against rounding: all samples that close are inner.
+    # Every sample within `wide` (slightly enlarged against rounding) must be inner. The
+    # samples outside the window lie at least clear[j0] - d0 from x (triangle inequality);
+    # where that does not prove it, a ball count of the tree decides.
     wide = lim * (1 + 1e-9) + 1e-300
-    count = tree.query_ball_point(x, wide, return_length=True)
-    done = (size > 2 * w + 3) & (count == (inner <= wide[:, None]).sum(axis=1))
+    num_inner = (inner <= wide[:, None]).sum(axis=1)
+    done = (clear[j0] - d0) * (1 - 1e-9) > wide
+    rest = np.flatnonzero(~done)
+    if len(rest):
+        count = tree.query_ball_point(x[rest], wide[rest], return_length=True)
+        done[rest] = count == num_inner[rest]
+    done &= size > 2 * w + 3
     close = (inner <= lim[:, None]) & (inner <= d[:, :-2]) & (inner <= d[:, 2:])
     close[:, w] = True  # the nearest sample
     r, c = np.nonzero(close & done[:, None])
@@ -814,6 +842,11 @@ class ImplicitCurve(Boundary):
         prev, nxt = _neighbours([len(q) for q in loops])
         return pts, cKDTree(pts), prev, nxt, max(float(_chords(q).max()) for q in loops)
 
+    @cached_property
+    def _clearance(self) -> Float:
+        pts, tree, _, nxt, _ = self._samples
+        return _window_clearance(tree, pts, nxt)
+
     def _newton(self, x: Float, y: Float, delta: float) -> tuple[Float, Bool]:
         """Closest points from starts ``y`` on Gamma; converged mask (see class docstring)."""
         y, ok, act = y.copy(), np.zeros(len(y), dtype=bool), np.arange(len(y))
@@ -846,7 +879,7 @@ class ImplicitCurve(Boundary):
         if not len(x):
             return np.empty((0, 2))
         pts, tree, prev, nxt, h = self._samples
-        pi, si = _candidates(x, tree, pts, prev, nxt, 0.75 * h)
+        pi, si = _candidates(x, tree, pts, prev, nxt, 0.75 * h, self._clearance)
         y, ok = self._newton(x[pi], pts[si], h)
         best = _best(pi, np.where(ok, norm2(y - x[pi]), np.inf))
         bad = np.flatnonzero(~ok[best])
@@ -952,12 +985,17 @@ class ParametricCurve(Boundary):
         prev, nxt = _neighbours([n])
         return t, p, cKDTree(p), prev, nxt, float(_chords(p).max())
 
+    @cached_property
+    def _clearance(self) -> Float:
+        _, p, tree, _, nxt, _ = self._samples
+        return _window_clearance(tree, p, nxt)
+
     def _project(self, x: Float) -> tuple[Float, Float]:
         """Parameters ``(n,)`` and points ``(n, 2)`` of the closest points of ``x (n, 2)``."""
         if not len(x):
             return np.empty(0), np.empty((0, 2))
         ts, ps, tree, prev, nxt, h = self._samples
-        pi, si = _candidates(x, tree, ps, prev, nxt, 0.75 * h)
+        pi, si = _candidates(x, tree, ps, prev, nxt, 0.75 * h, self._clearance)
         xs, dt, T = x[pi], self.period / len(ts), self.period
 
         def ev(t: Float, xx: Float) -> tuple[Float, Float, Float]:
@@ -966,8 +1004,8 @@ class ParametricCurve(Boundary):
             return (c1 * r).sum(axis=1), (c2 * r).sum(axis=1) + (c1 * c1).sum(axis=1), c
 
         lo, hi = ts[si] - dt, ts[si] + dt
-        glo, _, clo = ev(lo, xs)
-        ghi, _, chi = ev(hi, xs)
+        g2, _, c2 = ev(np.concatenate([lo, hi]), np.concatenate([xs, xs]))  # one evaluation
+        glo, ghi, clo, chi = g2[: len(lo)], g2[len(lo) :], c2[: len(lo)], c2[len(lo) :]
         t = np.where(norm2(clo - xs) <= norm2(chi - xs), lo, hi)  # no root: an endpoint
         br = np.flatnonzero((glo <= 0) & (ghi >= 0))
         if br.size:
