@@ -473,3 +473,50 @@ def test_implicit_newton_failure_is_reported():
     b = ImplicitCurve(lambda y: (y**2).sum(axis=1) - 1, noisy_grad, bbox=[[-1.1, -1.1], [1.1, 1.1]])
     with pytest.raises(RuntimeError, match=r"did not converge for 2 point\(s\), e.g. x=\[0.5"):
         b.closest_point([[0.5, 0.1], [0.1, 0.9]])
+
+
+@pytest.mark.parametrize("name", ["ellipse", "implicit", "annulus", "spline", "neck"])
+def test_window_clearance_is_a_lower_bound(name):
+    """Each sample's clearance (which lets the closest-point search skip the k-d tree's ball
+    count) is at most its distance to every sample outside its window along its loop, and
+    is attained where the nearest such sample is among the neighbours searched: against
+    all pairs of samples. ``annulus`` has two loops; ``neck`` comes back within a few
+    sample spacings of itself."""
+    from dolfinx_universal.boundaries import _WINDOW, _window_clearance
+
+    if name == "neck":  # a dumbbell whose waist is 0.004 wide
+        t = np.linspace(0.0, 2.0 * np.pi, 400, endpoint=False)
+        r = 0.002 + np.abs(np.cos(t)) ** 3
+        b: Boundary = PeriodicSpline(np.column_stack([r * np.cos(t), 0.5 * r * np.sin(t)]))
+    elif name == "annulus":  # (|x|^2 - 1) (|x|^2 - 1/4) < 0: two circles
+
+        def f(x):
+            s = (x**2).sum(axis=1)
+            return (s - 1.0) * (s - 0.25)
+
+        def grad(x):
+            return (2.0 * (x**2).sum(axis=1) - 1.25)[:, None] * 2.0 * x
+
+        b = ImplicitCurve(f, grad, bbox=[[-1.1, -1.1], [1.1, 1.1]])
+    else:
+        b = make_case(name)[0]
+    samples = b._samples
+    if len(samples) == 5:  # ImplicitCurve: (points, tree, prev, next, spacing)
+        pts, tree, nxt = samples[0], samples[1], samples[3]
+    else:  # ParametricCurve: (parameters, points, tree, prev, next, spacing)
+        pts, tree, nxt = samples[1], samples[2], samples[4]
+    clear = _window_clearance(tree, pts, nxt)
+    n = len(pts)
+    ends = np.flatnonzero(nxt != np.arange(1, n + 1))
+    loop = np.searchsorted(ends, np.arange(n))
+    size = np.bincount(loop)[loop]
+    exact = np.empty(n)
+    for rows in np.array_split(np.arange(n), 16):  # all pairs, a block of rows at a time
+        step = (np.arange(n)[None, :] - rows[:, None]) % size[rows, None]
+        near = (step <= _WINDOW) | (step >= size[rows, None] - _WINDOW)
+        inside = (loop[None, :] == loop[rows, None]) & near
+        d = np.linalg.norm(pts[rows, None, :] - pts[None, :, :], axis=2)
+        exact[rows] = np.where(inside, np.inf, d).min(axis=1)
+    assert len(ends) == (2 if name == "annulus" else 1)
+    assert np.all(clear <= exact)
+    assert np.mean(clear == exact) > 0.9

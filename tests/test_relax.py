@@ -15,6 +15,8 @@ import dolfinx_universal as du
 from dolfinx_universal._geometry import interior_angles
 from dolfinx_universal.curved import _cell_nodes
 from dolfinx_universal.relax import (
+    ACTIVE_BELOW,
+    ACTIVE_RATIO,
     _star_quality,
     _Sub,
     coordinate_priority,
@@ -343,3 +345,50 @@ def test_relaxation_independent_of_partition():
         assert comm.allreduce(diff, op=MPI.MAX) < 1e-12
         qp, qs = du.quality_report(p), du.quality_report(s)
         assert qp["theta_min_deg"] == pytest.approx(qs["theta_min_deg"], abs=1e-9)
+
+
+def test_vertices_as_good_as_the_background_rest():
+    """A vertex is worked on only while its star is below ACTIVE_RATIO times its star's
+    worst quality in the background: on a background of 31-59-90 degree triangles (quality
+    0.80, below ACTIVE_BELOW) nothing is rated at the background positions, and after a
+    perturbation only the stars it spoiled are relaxed, back above that bound."""
+    from dolfinx.mesh import create_rectangle
+
+    msh = create_rectangle(MPI.COMM_SELF, [[0.0, 0.0], [1.0, 0.6]], [10, 10])
+    msh.topology.create_connectivity(2, 0)
+    cells = msh.topology.connectivity(2, 0).array.reshape(-1, 3)
+    imv = msh.topology.index_map(0)
+    v2n = np.empty(imv.size_local, dtype=np.int32)
+    v2n[cells] = msh.geometry.dofmaps[0]
+    x0 = msh.geometry.x[v2n, :2].copy()
+    inner = np.all((x0 > 0.05) & (x0 < [0.95, 0.55]), axis=1)
+    d1, d2 = x0[cells[:, 1]] - x0[cells[:, 0]], x0[cells[:, 2]] - x0[cells[:, 0]]
+    orient = np.sign(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+    q_bg = shape_quality(x0[cells[:, 0]], x0[cells[:, 1]], x0[cells[:, 2]], orient)
+    assert np.allclose(q_bg, q_bg[0]) and 0.75 < q_bg[0] < ACTIVE_BELOW
+
+    def relax(y):
+        return relax_vertices(
+            MPI.COMM_SELF, imv, lambda p: (p, np.zeros_like(p)), x0, x0, y, cells, inner,
+            np.zeros(len(y), dtype=bool), np.zeros_like(y), np.zeros(len(y)),
+            np.full(len(y), 0.1),
+        )  # fmt: skip
+
+    r = relax(x0.copy())
+    assert r.num_sweeps == 0 and r.num_moves == 0 and not r.moved.any()
+    # Push one inside vertex most of the way to a neighbour: its star and its neighbours'
+    # fall below the bound; the relaxation moves them (and nothing far away) and lifts the
+    # worst triangle back above ACTIVE_RATIO times the background's.
+    v = np.flatnonzero(inner)[len(np.flatnonzero(inner)) // 2]
+    w = cells[np.any(cells == v, axis=1)].ravel()
+    w = w[w != v][0]
+    y = x0.copy()
+    y[v] += 0.6 * (x0[w] - x0[v])
+    q = shape_quality(y[cells[:, 0]], y[cells[:, 1]], y[cells[:, 2]], orient)
+    assert q.min() < ACTIVE_RATIO * q_bg[0]
+    r = relax(y)
+    assert r.num_moves > 0
+    q = shape_quality(r.y[cells[:, 0]], r.y[cells[:, 1]], r.y[cells[:, 2]], orient)
+    assert q.min() >= ACTIVE_RATIO * q_bg[0]
+    far = np.linalg.norm(x0 - x0[v], axis=1) > 0.35
+    assert not r.moved[far].any()
