@@ -280,16 +280,21 @@ def test_moving_domain_relaxes():
         assert np.abs(r - 1.0).max(initial=0.0) < 1e-13  # closest points: rounding only
 
 
-def test_relax_vertices_never_lowers_a_star():
-    """Each accepted move raises the moving vertex's worst quality: the minimum over the
-    triangles never falls, whatever the number of sweeps; vertices not movable stay."""
-    msh = du.equilateral_mesh(MPI.COMM_SELF, [[0, 0], [1, 1]], 0.1)
+def _vertex_arrays(msh):
+    """Triangles by vertex, the vertex index map and the vertex positions of ``msh``."""
     msh.topology.create_connectivity(2, 0)
     cells = msh.topology.connectivity(2, 0).array.reshape(-1, 3)
     imv = msh.topology.index_map(0)
     v2n = np.empty(imv.size_local, dtype=np.int32)
     v2n[cells] = msh.geometry.dofmaps[0]
-    x0 = msh.geometry.x[v2n, :2].copy()
+    return cells, imv, msh.geometry.x[v2n, :2].copy()
+
+
+def test_relax_vertices_never_lowers_a_star():
+    """Each accepted move raises the moving vertex's worst quality: the minimum over the
+    triangles never falls, whatever the number of sweeps; vertices not movable stay."""
+    msh = du.equilateral_mesh(MPI.COMM_SELF, [[0, 0], [1, 1]], 0.1)
+    cells, imv, x0 = _vertex_arrays(msh)
     rng = np.random.default_rng(7)
     inner = np.all((x0 > 0.05) & (x0 < 0.95), axis=1)
     y = x0 + np.where(inner[:, None], rng.uniform(-0.03, 0.03, size=x0.shape), 0.0)
@@ -355,12 +360,7 @@ def test_vertices_as_good_as_the_background_rest():
     from dolfinx.mesh import create_rectangle
 
     msh = create_rectangle(MPI.COMM_SELF, [[0.0, 0.0], [1.0, 0.6]], [10, 10])
-    msh.topology.create_connectivity(2, 0)
-    cells = msh.topology.connectivity(2, 0).array.reshape(-1, 3)
-    imv = msh.topology.index_map(0)
-    v2n = np.empty(imv.size_local, dtype=np.int32)
-    v2n[cells] = msh.geometry.dofmaps[0]
-    x0 = msh.geometry.x[v2n, :2].copy()
+    cells, imv, x0 = _vertex_arrays(msh)
     inner = np.all((x0 > 0.05) & (x0 < [0.95, 0.55]), axis=1)
     d1, d2 = x0[cells[:, 1]] - x0[cells[:, 0]], x0[cells[:, 2]] - x0[cells[:, 0]]
     orient = np.sign(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
