@@ -202,7 +202,13 @@ def _crossing_sign(p: Float, loops: Sequence[Float]) -> Float:
 
 
 def _candidates(
-    x: Float, tree: cKDTree, pts: Float, prev: Int, nxt: Int, reach: float, clear: Float
+    x: Float,
+    tree: cKDTree,
+    pts: Float,
+    prev: Int,
+    nxt: Int,
+    reach: float,
+    clear: tuple[Float, ...],
 ) -> tuple[Int, Int]:
     """Start samples for the exact projection of every point of ``x``.
 
@@ -214,10 +220,11 @@ def _candidates(
     neighbouring intervals, the discrete minimum is that sample or its neighbour).
 
     Search: the samples within ``d_min + reach`` of most points are a few neighbours along the
-    loop of the nearest sample. A window of :data:`_WINDOW` samples on each side of it is
-    searched directly, and the nearest sample's clearance ``clear``
-    (:func:`_window_clearance`), or else a ball count of the k-d tree, proves that no other
-    sample is that close (else the point goes on). The k nearest samples (k = 16, then 64)
+    loop of the nearest sample. A window of samples on each side of it (:data:`_WINDOWS`:
+    first a narrow one, enough near Gamma, then a wide one) is searched directly, and the
+    nearest sample's clearance ``clear`` for that window (:func:`_window_clearance`), or else
+    a ball count of the k-d tree, proves that no other sample is that close (else the point
+    goes on). The k nearest samples (k = 16, then 64)
     settle most other points; the rest (far from Gamma) are searched exhaustively. The
     candidates do not depend on the route.
     """
@@ -226,10 +233,20 @@ def _candidates(
     m = len(pts)
     todo = np.arange(len(x))
     if len(x):
-        done, pi, si = _window_candidates(x, tree, pts, nxt, reach, clear)
-        ps.append(pi)
-        ss.append(si)
-        todo = todo[~done]
+        d0, j0 = tree.query(x)
+        left = np.ones(len(x), dtype=bool)
+        for w, cw in zip(_WINDOWS, clear):  # a narrow window first, then the wide one
+            sub = np.flatnonzero(left)
+            if w != max(_WINDOWS):  # only the points its clearance settles
+                d, j = d0[sub], j0[sub]
+                sub = sub[(cw[j] - d) * (1 - 1e-9) > (d + reach) * (1 + 1e-9) + 1e-300]
+            done, pi, si = _window_candidates(
+                x[sub], d0[sub], j0[sub], tree, pts, nxt, reach, cw, w
+            )
+            ps.append(sub[pi])
+            ss.append(si)
+            left[sub[done]] = False
+        todo = np.flatnonzero(left)
     for k in (min(16, m), min(64, m)):
         if not todo.size:
             break
@@ -255,40 +272,55 @@ def _candidates(
     return np.concatenate(ps).astype(np.intp), np.concatenate(ss).astype(np.intp)
 
 
-_WINDOW = 16
-"""Samples on each side of the nearest one searched directly by :func:`_candidates`."""
+_WINDOWS = (4, 16)
+"""Samples on each side of the nearest one searched directly by :func:`_candidates`: the
+narrow window settles the points near Gamma (within a few sample spacings), the wide one
+most others."""
 
 
-def _window_clearance(tree: cKDTree, pts: Float, nxt: Int) -> Float:
-    """For each sample, a lower bound of its distance to the samples outside its window
-    (the :data:`_WINDOW` samples on each side along its loop, and itself) ``(n,)``.
+def _window_clearance(tree: cKDTree, pts: Float, nxt: Int) -> tuple[Float, ...]:
+    """For each window of :data:`_WINDOWS` and each sample, a lower bound of the sample's
+    distance to the samples outside its window (the ``w`` samples on each side along its
+    loop, and itself), ``(n,)`` each.
 
-    From its ``2 _WINDOW + 5`` nearest samples: the distance to the nearest of them outside
-    the window, else to the farthest of them (every other sample is at least that far).
+    From its ``2 w + 5`` nearest samples (``w`` the widest window): the distance to the
+    nearest of them outside the window, else to the farthest of them (every other sample
+    is at least that far).
     """
-    n, w = len(pts), _WINDOW
-    k = min(2 * w + 5, n)
+    n = len(pts)
+    k = min(2 * max(_WINDOWS) + 5, n)
     d, j = tree.query(pts, k=k)
     d, j = d.reshape(n, k), j.reshape(n, k)
     ends = np.flatnonzero(nxt != np.arange(1, n + 1))  # last sample of each loop
     loop = np.searchsorted(ends, np.arange(n))
     size = (ends - np.concatenate([[-1], ends[:-1]]))[loop]
     step = (j - np.arange(n)[:, None]) % size[:, None]
-    outside = (loop[j] != loop[:, None]) | ((step > w) & (step < size[:, None] - w))
-    first = np.argmax(outside, axis=1)
-    return np.where(outside.any(axis=1), d[np.arange(n), first], d[:, -1])
+    other = loop[j] != loop[:, None]
+    out = []
+    for w in _WINDOWS:
+        outside = other | ((step > w) & (step < size[:, None] - w))
+        first = np.argmax(outside, axis=1)
+        out.append(np.where(outside.any(axis=1), d[np.arange(n), first], d[:, -1]))
+    return tuple(out)
 
 
 def _window_candidates(
-    x: Float, tree: cKDTree, pts: Float, nxt: Int, reach: float, clear: Float
+    x: Float,
+    d0: Float,
+    j0: Int,
+    tree: cKDTree,
+    pts: Float,
+    nxt: Int,
+    reach: float,
+    clear: Float,
+    w: int,
 ) -> tuple[Bool, Int, Int]:
     """The candidates of :func:`_candidates` for the points whose samples within reach all
-    lie within :data:`_WINDOW` samples of the nearest one along its loop.
+    lie within ``w`` samples of the nearest one ``j0`` (at ``d0``) along its loop.
 
     Returns the mask of the points settled, and their pairs ``(point, sample)``.
     """
-    n, w = len(pts), _WINDOW
-    d0, j0 = tree.query(x)
+    n = len(pts)
     lim = d0 + reach
     ends = np.flatnonzero(nxt != np.arange(1, n + 1))  # last sample of each loop
     loop = np.searchsorted(ends, j0)
@@ -305,8 +337,8 @@ def _window_candidates(
     wide = lim * (1 + 1e-9) + 1e-300
     num_inner = (inner <= wide[:, None]).sum(axis=1)
     done = (clear[j0] - d0) * (1 - 1e-9) > wide
-    rest = np.flatnonzero(~done)
-    if len(rest):
+    rest = np.flatnonzero(~done & (size > 2 * w + 3))
+    if len(rest) and w == max(_WINDOWS):  # the narrow window leaves the rest to the wide one
         count = tree.query_ball_point(x[rest], wide[rest], return_length=True)
         done[rest] = count == num_inner[rest]
     done &= size > 2 * w + 3
@@ -843,7 +875,7 @@ class ImplicitCurve(Boundary):
         return pts, cKDTree(pts), prev, nxt, max(float(_chords(q).max()) for q in loops)
 
     @cached_property
-    def _clearance(self) -> Float:
+    def _clearance(self) -> tuple[Float, ...]:
         pts, tree, _, nxt, _ = self._samples
         return _window_clearance(tree, pts, nxt)
 
@@ -986,7 +1018,7 @@ class ParametricCurve(Boundary):
         return t, p, cKDTree(p), prev, nxt, float(_chords(p).max())
 
     @cached_property
-    def _clearance(self) -> Float:
+    def _clearance(self) -> tuple[Float, ...]:
         _, p, tree, _, nxt, _ = self._samples
         return _window_clearance(tree, p, nxt)
 

@@ -482,7 +482,7 @@ def test_window_clearance_is_a_lower_bound(name):
     is attained where the nearest such sample is among the neighbours searched: against
     all pairs of samples. ``annulus`` has two loops; ``neck`` comes back within a few
     sample spacings of itself."""
-    from dolfinx_universal.boundaries import _WINDOW, _window_clearance
+    from dolfinx_universal.boundaries import _WINDOWS, _window_clearance
 
     if name == "neck":  # a dumbbell whose waist is 0.004 wide
         t = np.linspace(0.0, 2.0 * np.pi, 400, endpoint=False)
@@ -505,18 +505,20 @@ def test_window_clearance_is_a_lower_bound(name):
         pts, tree, nxt = samples[0], samples[1], samples[3]
     else:  # ParametricCurve: (parameters, points, tree, prev, next, spacing)
         pts, tree, nxt = samples[1], samples[2], samples[4]
-    clear = _window_clearance(tree, pts, nxt)
+    clears = _window_clearance(tree, pts, nxt)
     n = len(pts)
     ends = np.flatnonzero(nxt != np.arange(1, n + 1))
     loop = np.searchsorted(ends, np.arange(n))
     size = np.bincount(loop)[loop]
-    exact = np.empty(n)
-    for rows in np.array_split(np.arange(n), 16):  # all pairs, a block of rows at a time
-        step = (np.arange(n)[None, :] - rows[:, None]) % size[rows, None]
-        near = (step <= _WINDOW) | (step >= size[rows, None] - _WINDOW)
-        inside = (loop[None, :] == loop[rows, None]) & near
-        d = np.linalg.norm(pts[rows, None, :] - pts[None, :, :], axis=2)
-        exact[rows] = np.where(inside, np.inf, d).min(axis=1)
     assert len(ends) == (2 if name == "annulus" else 1)
-    assert np.all(clear <= exact)
-    assert np.mean(clear == exact) > 0.9
+    assert len(clears) == len(_WINDOWS)
+    for w, clear in zip(_WINDOWS, clears):
+        exact = np.empty(n)
+        for rows in np.array_split(np.arange(n), 16):  # all pairs, a block of rows at a time
+            step = (np.arange(n)[None, :] - rows[:, None]) % size[rows, None]
+            near = (step <= w) | (step >= size[rows, None] - w)
+            inside = (loop[None, :] == loop[rows, None]) & near
+            d = np.linalg.norm(pts[rows, None, :] - pts[None, :, :], axis=2)
+            exact[rows] = np.where(inside, np.inf, d).min(axis=1)
+        assert np.all(clear <= exact), w
+        assert np.mean(clear == exact) > 0.9, w
