@@ -91,9 +91,9 @@ targets with a margin of 5 % stop, so that after a few sweeps only the few verti
 worst triangles are still worked on (on the circle study 1.1 instead keeps every band
 vertex busy for all sweeps, at twice the cost, for a minimum angle 1-2 degrees higher)."""
 ACTIVE_RATIO = 0.9
-"""... and only while that triangle is below this fraction of the worst quality of the
-vertex's star in the background (before ``M_h``): a vertex stops once its star is within 10 %
-of what the background offered there. On equilateral backgrounds (quality 1.30)
+"""A vertex moves in a sweep only if its worst triangle is also below this fraction of the
+worst quality of its star in the background (before ``M_h``): a vertex stops once its star
+is within 10 % of what the background offered there. On equilateral backgrounds (quality 1.30)
 :data:`ACTIVE_BELOW` decides alone. Graded backgrounds have worse cells (0.93-1.10 on the
 propeller demo's), and there the absolute targets kept almost every band vertex busy for
 all sweeps for gains of no consequence: on the propeller demo (24 steps) 0.9 halves the
