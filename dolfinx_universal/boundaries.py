@@ -224,9 +224,8 @@ def _candidates(
     first a narrow one, enough near Gamma, then a wide one) is searched directly, and the
     nearest sample's clearance ``clear`` for that window (:func:`_window_clearance`), or else
     a ball count of the k-d tree, proves that no other sample is that close (else the point
-    goes on). The k nearest samples (k = 16, then 64)
-    settle most other points; the rest (far from Gamma) are searched exhaustively. The
-    candidates do not depend on the route.
+    goes on). The k nearest samples (k = 16, then 64) settle most other points; the rest
+    (far from Gamma) are searched exhaustively. The candidates do not depend on the route.
     """
     ps: list[Int] = []
     ss: list[Int] = []
