@@ -498,25 +498,30 @@ class _Stars:
     def background_minima(self, x0: Float, m: int) -> Float:
         """The worst quality around each movable vertex ``(m,)`` at the background positions
         ``x0`` (inf without entries; -1 where a triangle is degenerate there)."""
-        star = np.full(m, np.inf)
-        ev = self.ev
-        if len(ev):
-            p, a, b = x0[self.verts[ev]], x0[self.ea], x0[self.eb]
-            lab = np.hypot(b[:, 0] - a[:, 0], b[:, 1] - a[:, 1])
-            q = _star_quality(p[:, 0], p[:, 1], a[:, 0], a[:, 1], b[:, 0], b[:, 1], lab)
-            star[ev[self.vstart]] = np.minimum.reduceat(q, self.vstart)
-        return star
+        if not len(self.ev):
+            return np.full(m, np.inf)
+        p, a, b = x0[self.verts[self.ev]], x0[self.ea], x0[self.eb]
+        lab = np.hypot(b[:, 0] - a[:, 0], b[:, 1] - a[:, 1])
+        return self._vertex_minima(
+            _star_quality(p[:, 0], p[:, 1], a[:, 0], a[:, 1], b[:, 0], b[:, 1], lab), m
+        )
 
     def star_minima(self, changed: Bool, m: int) -> Float:
         """The worst quality around each movable vertex ``(m,)`` (inf without entries),
         re-rating the entries with a corner among the ``changed`` vertices."""
-        star = np.full(m, np.inf)
         ev = self.ev
-        if len(ev):
-            touched = changed[self.verts[ev]] | changed[self.ea] | changed[self.eb]
-            D = np.flatnonzero(touched)
-            self.qe[D] = self.rate(D, self.y[self.verts[ev[D]]])
-            star[ev[self.vstart]] = np.minimum.reduceat(self.qe, self.vstart)
+        if not len(ev):
+            return np.full(m, np.inf)
+        touched = changed[self.verts[ev]] | changed[self.ea] | changed[self.eb]
+        D = np.flatnonzero(touched)
+        self.qe[D] = self.rate(D, self.y[self.verts[ev[D]]])
+        return self._vertex_minima(self.qe, m)
+
+    def _vertex_minima(self, q: Float, m: int) -> Float:
+        """The minimum of entry values ``q`` over each movable vertex's entries ``(m,)``
+        (inf for vertices without entries here)."""
+        star = np.full(m, np.inf)
+        star[self.ev[self.vstart]] = np.minimum.reduceat(q, self.vstart)
         return star
 
 
