@@ -10,6 +10,16 @@ import numpy as np
 import numpy.typing as npt
 
 from ._geometry import Bool, Float, Int
+from ._tetrahedron import (
+    EDGES,
+    _soa_corners,
+    _soa_cross,
+    _soa_det6,
+    _soa_dihedral,
+    _soa_dot,
+    _soa_sq,
+    _soa_sub,
+)
 from .classify import conditioning_angle, proximal_vertex
 from .dimensions import cell_kernels
 from .validation import MeshingError, Problem, collective_call, where
@@ -539,29 +549,6 @@ class TetMeasures(NamedTuple):
     """Dihedral angles (radians) of the images ``(m, 6)``."""
 
 
-def _soa_cross(u: list[Float], v: list[Float]) -> list[Float]:
-    """Cross products of vectors given as their 3 component arrays."""
-    return [
-        u[1] * v[2] - u[2] * v[1],
-        u[2] * v[0] - u[0] * v[2],
-        u[0] * v[1] - u[1] * v[0],
-    ]
-
-
-def _soa_dot(u: list[Float], v: list[Float]) -> Float:
-    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
-
-
-def _soa_sub(u: list[Float], v: list[Float]) -> list[Float]:
-    return [u[0] - v[0], u[1] - v[1], u[2] - v[2]]
-
-
-def _soa_det6(p: list[list[Float]]) -> Float:
-    """``6 V`` of tetrahedra with corners ``p[vertex][coordinate]`` ``(m,)``."""
-    d = [_soa_sub(p[k], p[0]) for k in (1, 2, 3)]
-    return _soa_dot(d[0], _soa_cross(d[1], d[2]))
-
-
 def tet_measures(x: Float, y: Float, moved: Bool, cells: Int) -> TetMeasures:
     """Volumes, diameters and dihedral angles of the moved tetrahedra among ``cells``.
 
@@ -581,33 +568,16 @@ def tet_measures(x: Float, y: Float, moved: Bool, cells: Int) -> TetMeasures:
     cells
         Kept tetrahedra that may have moved ``(k, 4)``.
     """
-    from ._tetrahedron import EDGES, FACETS
-
     mv = moved[cells[:, 0]]
     for k in range(1, 4):
         mv |= moved[cells[:, k]]
     cells = cells[mv]
-    # corners as [vertex][coordinate] arrays (m,), gathered from the coordinate columns
-    cols = [np.ascontiguousarray(cells[:, k]) for k in range(4)]
-    q = [[x[:, i][c] for i in range(3)] for c in cols]
-    p = [[y[:, i][c] for i in range(3)] for c in cols]
-
-    def sq(u: list[Float]) -> Float:
-        return u[0] ** 2 + u[1] ** 2 + u[2] ** 2
-
+    q, p = _soa_corners(x, cells), _soa_corners(y, cells)
     d2 = np.zeros(len(cells))
     for i, j in EDGES:  # the longest edge, by squared lengths (sqrt is monotone)
-        np.maximum(d2, sq(_soa_sub(q[j], q[i])), out=d2)
+        np.maximum(d2, _soa_sq(_soa_sub(q[j], q[i])), out=d2)
     v6 = _soa_det6(p)
-    n = [_soa_cross(_soa_sub(p[b], p[a]), _soa_sub(p[c], p[a])) for a, b, c in FACETS]
-    av6 = np.abs(v6)
-    angles = np.empty((len(cells), 6))
-    for e, ((i, j), (k, m)) in enumerate(zip(EDGES, EDGES[::-1])):
-        nk, nl = n[k], n[m]
-        length = np.sqrt(sq(_soa_sub(p[j], p[i])))
-        theta = np.arctan2(av6 * length, -_soa_dot(nk, nl))
-        undefined = (sq(nk) == 0.0) | (sq(nl) == 0.0)
-        angles[:, e] = np.where(undefined, np.nan, theta)
+    angles = _soa_dihedral(p, v6)
     return TetMeasures(cells, _soa_det6(q) / 6.0, v6 / 6.0, np.sqrt(d2), angles)
 
 
