@@ -17,8 +17,9 @@ tetrahedra in the ball; ``--quick``: 2e4) the benchmark measures
 2. **gmsh** -- ``occ.addSphere(0, 0, 0, 1)``, ``Mesh.MeshSizeMin = Mesh.MeshSizeMax = size``,
    ``gmsh.model.mesh.generate(3)`` with the default 3D algorithm and optimiser (``Mesh.Optimize
    = 1``; the options are printed), order 1, then ``dolfinx.io.gmsh.model_to_mesh``. ``size``
-   is set so that gmsh's tetrahedron count matches the universal mesh's (``cells * size^3``
-   calibrated on an untimed small mesh); the counts are reported. ``--repeat`` repetitions
+   is set so that gmsh's tetrahedron count matches the universal mesh's (a volume and a
+   boundary term, ``cells = a / size^3 + b / size^2``, fitted to two untimed meshes of about
+   1e4 and 9e4 tetrahedra); the counts are reported. ``--repeat`` repetitions
    (median), one from ``--gmsh-single-from`` target cells on (default 5e5: at 1e6 gmsh takes
    minutes).
 
@@ -184,10 +185,28 @@ def bench_gmsh(comm: MPI.Comm, size: float, repeat: int) -> dict:
     }
 
 
-def calibrate_gmsh(comm: MPI.Comm, size: float = 0.12) -> float:
-    """Untimed warm-up of gmsh + model_to_mesh; returns cells * size^3 (about constant)."""
-    msh, _ = gmsh_ball(comm, size)
-    return num_cells(msh) * size**3
+CALIBRATION_SIZES = (0.12, 0.06)
+"""gmsh sizes of the untimed calibration meshes (about 1e4 and 9e4 tetrahedra)."""
+
+
+def calibrate_gmsh(comm: MPI.Comm) -> tuple[float, float]:
+    """Untimed gmsh + model_to_mesh runs (also the warm-up): ``(a, b)`` of the fit
+    ``cells = a / size^3 + b / size^2`` (a volume and a boundary term) through the
+    :data:`CALIBRATION_SIZES`. A volume term alone (``cells * size^3`` of one small mesh)
+    undershoots: its ratio grows with the mesh (the boundary's share falls), and it gave
+    915082 tetrahedra for a target of 1024292."""
+    s = np.asarray(CALIBRATION_SIZES)
+    cells = [num_cells(gmsh_ball(comm, float(si))[0]) for si in s]
+    a, b = np.linalg.solve(np.column_stack([s**-3.0, s**-2.0]), np.asarray(cells, float))
+    return float(a), float(b)
+
+
+def gmsh_size(fit: tuple[float, float], cells: int) -> float:
+    """The gmsh size whose fitted count (:func:`calibrate_gmsh`) is ``cells``."""
+    a, b = fit
+    roots = np.roots([a, b, 0.0, -float(cells)])  # a u^3 + b u^2 = cells, u = 1 / size
+    u = max(r.real for r in roots if abs(r.imag) < 1e-9 * abs(r) and r.real > 0)
+    return float(1.0 / u)
 
 
 def main(argv: list[str] | None = None) -> list[dict]:
@@ -229,7 +248,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
     say(f"universal: A15 background, UniversalMesh defaults (relax=True); repeat={args.repeat}")
 
     # Untimed warm-ups of both pipelines (first-call costs).
-    k_gmsh = calibrate_gmsh(comm)
+    fit = calibrate_gmsh(comm)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)
         h0 = size_for_cells(5e3)
@@ -250,7 +269,7 @@ def main(argv: list[str] | None = None) -> list[dict]:
             + ", ".join(f"{t:.3f}" for t in row["conform_totals_s"])
             + f" s; {row['universal_warnings']} low-quality warning(s)"
         )
-        size = float(np.cbrt(k_gmsh / row["conform_cells"]))
+        size = gmsh_size(fit, row["conform_cells"])
         gmsh_repeat = 1 if target >= args.gmsh_single_from else args.repeat
         row.update(bench_gmsh(comm, size, gmsh_repeat))
         say(
