@@ -104,8 +104,11 @@ def vertex_colours_graph(sub: _Sub, cells: Int, priority: Float) -> Int:
     """The colours of :func:`relax.vertex_colours`, on the vertex graph (collective).
 
     The same Jones-Plassmann rounds with first fit, on the distinct pairs of vertices that
-    share a cell, dropping the pairs of coloured vertices from round to round: each round
-    costs in proportion to the vertices still uncoloured, not to all cells.
+    share a cell. Each vertex counts its uncoloured neighbours of higher priority (on each
+    rank, over the pairs it has; a vertex is free when no rank counts one), and a round
+    visits only the pairs of the vertices it colours: the counts and colour masks of their
+    uncoloured neighbours are updated there, so that all rounds together read each pair
+    about once.
     """
     m = len(sub.vertices)
     colour = np.full(m, -1, dtype=np.int64)
@@ -121,31 +124,26 @@ def vertex_colours_graph(sub: _Sub, cells: Int, priority: Float) -> Int:
     src, dst = key // m, key % m
     key = np.sort(np.concatenate([key, dst * m + src]))  # sorted by their first vertex
     src, dst = key // m, key % m
+    ptr = np.searchsorted(src, np.arange(m + 1))  # each vertex's pairs
+    # The uncoloured neighbours of higher priority that each vertex waits for.
+    waits = np.bincount(src[priority[dst] > priority[src]], minlength=m).astype(np.float64)
     used = np.zeros(m, dtype=np.int64)  # bit c: a neighbour has colour c
     while sub.comm.allreduce(bool((colour[: sub.size_local] < 0).any()), op=MPI.LOR):
-        unc = colour < 0
-        keep = unc[src] & unc[dst]  # the pairs of uncoloured vertices
-        src, dst = src[keep], dst[keep]
-        starts = np.flatnonzero(np.diff(src, prepend=-1))
-        vmax = np.full(m, -1.0)
-        if len(starts):
-            vmax[src[starts]] = np.maximum.reduceat(priority[dst], starts)
-        vmax = sub.reduce(vmax, "max")
-        new = np.flatnonzero(unc & (vmax < priority))
+        new = np.flatnonzero((colour < 0) & (sub.reduce(waits, "max") <= 0.0))
         un = used[new]
         free = ~un & (un + 1)  # the lowest colour not used
         if len(new) and (free.min() <= 0 or free.max() >= 2**_MAX_COLOURS):
             raise RuntimeError(f"vertex colouring: more than {_MAX_COLOURS} colours needed")
         colour[new] = np.round(np.log2(free.astype(np.float64))).astype(np.int64)
-        # The new colours go into the masks of their (uncoloured) neighbours.
-        is_new = np.zeros(m, dtype=bool)
-        is_new[new] = True
-        sel = is_new[dst]
-        s2 = src[sel]
-        st2 = np.flatnonzero(np.diff(s2, prepend=-1))
-        if len(st2):
-            bits = np.left_shift(1, colour[dst[sel]])
-            used[s2[st2]] |= np.bitwise_or.reduceat(bits, st2)
+        # The pairs of the new vertices with their uncoloured neighbours, all of lower
+        # priority: one fewer to wait for, and the new colour in their masks.
+        cnt = ptr[new + 1] - ptr[new]
+        at = np.repeat(ptr[new] - (np.cumsum(cnt) - cnt), cnt) + np.arange(cnt.sum())
+        nb, c = dst[at], np.repeat(colour[new], cnt)
+        open_ = colour[nb] < 0
+        nb, c = nb[open_], c[open_]
+        waits -= np.bincount(nb, minlength=m)
+        np.bitwise_or.at(used, nb, np.left_shift(1, c))
         if sub.map is not None:
             nbits = sub.comm.allreduce(int(colour.max(initial=-1)) + 1, op=MPI.MAX)
             b = 2 ** np.arange(nbits, dtype=np.int64)
