@@ -430,12 +430,14 @@ class _Directional:
         self.rowof[S] = np.arange(len(S))
         rE = self.rowof[vE]
         starts = np.flatnonzero(np.diff(rE, prepend=-1))
-        qv = self._rows(S, rE[starts], _segment_min(st.qcell[cell_idx[E]], starts), "min")
+        qE = st.qcell[cell_idx[E]]
+        qv = self._rows(S, rE[starts], _segment_min(qE, starts), "min")
         work = (qv < ACTIVE_BELOW) & (qv > -1.0)
-        # Only the vertices to work on and their entries, from here.
+        # Only the vertices to work on and their entries, from here (rows renumbered).
         keep = work[rE]
         E, S, q0 = E[keep], S[work], qv[work]
-        v = _Visit(S, E, q0, self.rowof, ev, st.terms(E), st.qcell[cell_idx[E]])
+        rE = (np.cumsum(work) - 1)[rE[keep]]
+        v = _Visit(S, E, q0, vE[keep], rE, st.terms(E), qE[keep])
         self._direction(v)
         self._line(v)
         stuck = ~v.gain & ~self.gamma_v[S]
@@ -596,13 +598,9 @@ class _Visit:
     """The arrays of one visit of :class:`_Directional` (the vertices ``S`` worked on, their
     entries ``E``, rows, star terms, and the candidate chosen so far)."""
 
-    def __init__(
-        self, S: Int, E: Int, q0: Float, rowof: Int, ev: Int, terms: tuple, q: Float
-    ) -> None:
+    def __init__(self, S: Int, E: Int, q0: Float, vE: Int, rE: Int, terms: tuple, q: Float) -> None:
         self.S, self.E, self.q0, self.terms, self.q = S, E, q0, terms, q
-        self.vE = ev[E]
-        rowof[S] = np.arange(len(S))
-        self.rE = rowof[self.vE]
+        self.vE, self.rE = vE, rE  # each entry's vertex, and its row in S
         self.starts = np.flatnonzero(np.diff(self.rE, prepend=-1))
         self.dv = np.zeros((len(S), 3))
         self.dn = np.zeros(len(S))
