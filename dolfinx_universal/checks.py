@@ -554,10 +554,9 @@ def tet_measures(x: Float, y: Float, moved: Bool, cells: Int) -> TetMeasures:
 
     The arithmetic of :func:`~dolfinx_universal._tetrahedron.signed_volumes`,
     :func:`~dolfinx_universal._tetrahedron.cell_diameters` and
-    :func:`~dolfinx_universal._tetrahedron.dihedral_angles` (bitwise the same values), on
-    the corners' coordinates as contiguous arrays (half the time of the strided
-    ``(m, 6, 3)`` arrays), each corner gathered once and the images' volumes shared by the
-    inversion test and the angles.
+    :func:`~dolfinx_universal._tetrahedron.dihedral_angles` (bitwise the same values), in
+    one pass: the moved cells selected once, each corner gathered once per position array,
+    and the images' volumes shared by the inversion test and the angles.
 
     Parameters
     ----------
