@@ -155,8 +155,8 @@ def _soa_det6(p: list[list[Float]]) -> Float:
 
 def _soa_corners(x: Float, cells: Int) -> list[list[Float]]:
     """Corners of tetrahedra as ``p[vertex][coordinate]`` arrays ``(m,)``, each gathered
-    from a coordinate column (contiguous arrays: the same values as :func:`_corners`, in
-    about half the time of its strided ``(m, 4, 3)`` copies in the arithmetic after)."""
+    from a coordinate column: the arithmetic on these contiguous arrays takes about half
+    the time it takes on the strided columns of an ``(m, 4, 3)`` gather."""
     x = np.asarray(x, dtype=np.float64)
     cells = np.asarray(cells)
     cols = [np.ascontiguousarray(cells[:, k]) for k in range(4)]
