@@ -880,7 +880,9 @@ def refine_size(
 
     Point sources at the vertex means of the marked ``cells`` with sizes ``factor`` times
     the local mesh size there (the longest edge of the cells around their vertices: on a
-    quadtree leaf, the leaf's longest edge), growing by ``gradation`` per
+    quadtree leaf, the leaf's longest edge) or times ``size_field`` there where that is
+    smaller (so that the new field is finer than the old at every marked cell), growing
+    by ``gradation`` per
     unit length away from them (a :class:`SizeField`), in the minimum with ``size_field``
     (the previous loop's field, if any). Give the result to
     :func:`~dolfinx_universal.mesh_domain` as ``size_field``: the new background is finer
@@ -936,6 +938,13 @@ def refine_size(
     marked = marked[marked < cmap.size_local]  # each marked cell once, by its owner
     local_size = vsize[c2v[marked]].max(axis=1) if len(marked) else np.zeros(0)
     centres = mesh.geometry.x[nodes[marked], :gdim].mean(axis=1)
+    if size_field is not None and len(marked):
+        # Where the mesh is coarser than the field asks (the longest edge around a cell
+        # near a curved boundary can exceed its leaf), the field's own size is the base:
+        # otherwise the new source may ask for no less than the field and leave the
+        # mesh as it is (an adaptive loop marking the same cells forever).
+        wanted = np.asarray(size_field(centres), dtype=np.float64).reshape(len(marked))
+        local_size = np.minimum(local_size, wanted)
     comm = mesh.comm
     points = np.concatenate(comm.allgather(centres)).reshape(-1, gdim)
     sizes = np.concatenate(comm.allgather(factor * local_size))

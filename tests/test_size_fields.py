@@ -194,6 +194,26 @@ def test_refine_size_halves_the_marked_cells():
         du.refine_size(md.mesh, [10**9])
 
 
+def test_refine_size_below_the_field_it_refines():
+    """Where the mesh is coarser than the previous field asks (here a field finer than the
+    cells everywhere, as near a curved boundary, where the longest edge around a cell can
+    exceed its leaf), the new sources are ``factor`` times the field there, not times the
+    cells: an adaptive loop that marks them must change the mesh (it once kept the same
+    mesh, marking the same two cells round after round)."""
+    md = du.mesh_domain(comm, CHANNEL, 0.04, box=BOX, size_factor=2)
+    mid, diam = cell_data(md.mesh)
+    marked = np.flatnonzero(np.linalg.norm(mid - [1.5, 0.2], axis=1) < 0.05)
+    assert comm.allreduce(len(marked)) > 0
+
+    def fine(x):
+        return np.full(len(x), 0.01)  # below every cell's longest edge (about 0.04)
+
+    field = du.refine_size(md.mesh, marked, fine)
+    # 0.6 * 0.01 at each source, growing by 0.2 per unit length: below 0.01 at the
+    # marked cells' vertex means (the sources themselves)
+    assert (field(mid[marked]) <= 0.6 * 0.01 * (1 + 1e-12)).all()
+
+
 def test_refine_size_on_tetrahedra():
     md = du.mesh_domain(comm, du.Sphere((0.0, 0.0, 0.0), 0.5), 0.3, tet_background="graded")
     mid, diam = cell_data(md.mesh)
