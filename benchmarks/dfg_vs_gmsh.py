@@ -19,8 +19,9 @@ MUMPS, c_D and c_L by the weak residual, Δp by point values of p_h) on
   sizing ``h = 0.08 s``, ``size_factor = 2 / s``). Their scale ``s`` is found by a search
   on the number of dofs (which costs one ``mesh_domain`` and the edge count per try): the
   secant step of ``dofs ~ s^-2`` inside a bracket, bisection where it leaves the bracket.
-  And ``adaptive``: the demo's adaptive loop (residual indicator, Dörfler marking,
-  ``refine_size``; run once from level 0 past the largest gmsh mesh) up to its last round
+  And ``adaptive``: the demo's adaptive loop (dual-weighted residual indicators of c_D and
+  c_L, Dörfler marking, ``refine_size``; run once from level 0 past the largest gmsh mesh)
+  up to its last round
   below the gmsh mesh's dofs, then one more refinement whose Dörfler fraction is found by
   bisection to give those dofs (:func:`matched_adaptive`).
 

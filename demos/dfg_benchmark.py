@@ -75,7 +75,7 @@
 #
 # Run with `python demos/dfg_benchmark.py [--quick] [--out DIR]`, also under `mpirun`.
 # `--quick` runs the three coarsest levels of both degrees and the adaptive loop up to
-# their number of degrees of freedom (about 20 s; the full run about four minutes).
+# their number of degrees of freedom (about 30 s; the full run about six minutes).
 # Written to `DIR` (default `out/dfg_benchmark`): `summary.json` (`{"rows": [...],
 # "adaptive": [...], "theta": ...}`, one row per level and geometry degree, one per
 # adaptive round), `fields.png` (velocity magnitude and pressure near the cylinder, on the
@@ -100,7 +100,13 @@ import numpy as np
 import ufl
 from dolfinx import fem, la
 from dolfinx import mesh as dmesh
-from dolfinx.fem.petsc import NonlinearProblem
+from dolfinx.fem.petsc import (
+    NonlinearProblem,
+    apply_lifting,
+    assemble_matrix,
+    create_vector,
+    set_bc,
+)
 
 import dolfinx_universal as du
 from dolfinx_universal.demo_support import demo_options, log
@@ -336,57 +342,127 @@ def solve_level(level: int, degree: int) -> tuple[dict, fem.Function]:
 # ## Adaptivity
 #
 # The size field encodes what is known in advance; an adaptive loop finds the rest from
-# the solution. Each round solves on the current mesh, computes a residual error indicator
-# per cell,
+# the solution. The quantities of interest are the forces, so the loop refines where they
+# are computed badly: dual-weighted residual indicators (Becker & Rannacher, "An optimal
+# control approach to a posteriori error estimation in finite element methods", Acta
+# Numerica 2001). For $J(w) = R(w; \psi)$ ($\psi = v_D$ or $v_L$ as above) the dual
+# solution $z = (z_u, z_p)$ solves the adjoint of Newton's linearisation at $w_h$,
 #
-# $$ \eta_K^2 = h_K^2 \| -\nu \Delta u_h + (u_h \cdot \nabla) u_h + \nabla p_h \|_K^2
-#    + \| \operatorname{div} u_h \|_K^2
-#    + \tfrac12 \sum_{F \subset \partial K \setminus \partial\Omega} h_F
-#      \| [\![ (\nu \nabla u_h - p_h I) n ]\!] \|_F^2 $$
+# $$ R'(w_h)[\varphi](z) = 0 \quad \text{for all } \varphi \text{ vanishing on the
+#    Dirichlet boundary}, \qquad z_u = \psi \text{ on the cylinder},\ z_u = 0 \text{ on
+#    the inflow and the walls}, $$
 #
-# (the momentum and continuity residuals in the cell and the jumps of the normal stress
-# across its interior facets; Verfürth, "A posteriori error estimation techniques for
-# finite element methods", 2013), assembled against a piecewise-constant test function
-# with ordinary UFL forms ($h_K$ the longest edge of the cell, a DG0 function: the curved
-# cells have no `CellDiameter`). {py:func}`dolfinx_universal.mark_cells` marks the fewest
-# cells that hold the fraction $\theta$ = `THETA` of $\sum \eta_K^2$ (Dörfler's bulk
-# criterion), {py:func}`dolfinx_universal.refine_size` turns them into the next size field
-# (half the size there, in the minimum with the previous field) and `mesh_domain`
-# conforms the circle to the new quadtree: no remeshing, a fraction of a second per
-# round. The loop starts from level 0's field and stops past the finest level's number of
-# degrees of freedom. The indicator measures the energy error, not the drag's: the forces,
-# computed from the weak residual, converge like its square.
+# and the error of the force is, up to terms quadratic in the error,
+#
+# $$ J(w) - J(w_h) \approx R(w_h; z - z_h) = \sum_K \eta_K , \qquad
+#    \eta_K = (r_K, z_u - z_{u,h})_K - (\operatorname{div} u_h, z_p - z_{p,h})_K
+#    + \tfrac12 \sum_{F \subset \partial K} ([\![ \sigma_h n ]\!], z_u - z_{u,h})_F $$
+#
+# with the cell residual $r_K = -\nu \Delta u_h + (u_h \cdot \nabla) u_h + \nabla p_h$ and
+# the jumps of the normal stress $\sigma_h n = (\nu \nabla u_h - p_h I) n$ across interior
+# facets (on the outflow, its value: the do-nothing condition's residual). The unknown
+# $z - z_h$ is approximated by solving the dual problem with $P_3/P_2$ on the same mesh
+# and subtracting its $P_2/P_1$ interpolant. Both are ordinary UFL forms, assembled
+# against a piecewise-constant test function. The sum $\sum_K \eta_K$ estimates the error
+# of $c_D$ (of $c_L$) with its sign; the loop marks by $|\eta^D_K| / |c_D| + |\eta^L_K| /
+# |c_L|$, the cells' shares of both relative errors, with Dörfler's bulk criterion:
+# {py:func}`dolfinx_universal.mark_cells` marks the fewest cells that hold the fraction
+# $\theta$ = `THETA` of the sum, {py:func}`dolfinx_universal.refine_size` turns them into
+# the next size field (half the size there, in the minimum with the previous field) and
+# `mesh_domain` conforms the circle to the new quadtree: no remeshing, a fraction of a
+# second per round. The loop starts from level 0's field and stops past the finest
+# level's number of degrees of freedom.
 
 # +
 THETA = 0.3
 """Dörfler fraction of the adaptive loop (a small fraction: many small steps, each round
 refining where the indicator is largest)."""
 SHOWN_ROUND = 5
-"""The adaptive round drawn in ``adaptive_mesh.png`` (about 1e5 dofs: the cells show)."""
+"""The adaptive round drawn in ``adaptive_mesh.png`` (about 7e4 dofs: the cells show)."""
 
 
-def error_indicators(msh: dmesh.Mesh, w: fem.Function) -> np.ndarray:
-    """The residual indicators ``eta_K`` of the owned cells (collective)."""
+def force_indicators(
+    msh: dmesh.Mesh, w: fem.Function, outer: np.ndarray, cylinder: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The dual-weighted residual indicators of ``c_D`` and ``c_L`` on the owned cells,
+    signed: each cell's share of the estimated error of the coefficient (their sums
+    estimate ``c(w_h) - c(w)``; collective). ``outer`` and ``cylinder`` are the local
+    boundary facets of :func:`solve`."""
     u, p = ufl.split(w)
-    DG0 = fem.functionspace(msh, ("DG", 0))
-    v = ufl.TestFunction(DG0)
-    cells = msh.topology.index_map(2)
-    n_local = cells.size_local + cells.num_ghosts
-    xv = msh.geometry.x[msh.geometry.dofmaps[0][:n_local, :3], :2]  # the vertices
-    h = fem.Function(DG0)
-    h.x.array[:n_local] = np.max(
-        [np.linalg.norm(xv[:, i] - xv[:, j], axis=1) for i, j in ((0, 1), (1, 2), (0, 2))],
-        axis=0,
+    # The dual problem with P3/P2 on the same mesh: one matrix, two right-hand sides.
+    P3 = basix.ufl.element("Lagrange", msh.basix_cell(), 3, shape=(2,))
+    P2 = basix.ufl.element("Lagrange", msh.basix_cell(), 2)
+    Z = fem.functionspace(msh, basix.ufl.mixed_element([P3, P2]))
+    Zu, _ = Z.sub(0).collapse()
+    zu, zp = ufl.TrialFunctions(Z)
+    phi_u, phi_p = ufl.TestFunctions(Z)
+    adjoint = fem.form(
+        (
+            nu * ufl.inner(ufl.grad(phi_u), ufl.grad(zu))
+            + ufl.inner(ufl.grad(phi_u) * u + ufl.grad(u) * phi_u, zu)
+            - phi_p * ufl.div(zu)
+            - zp * ufl.div(phi_u)
+        )
+        * ufl.dx
     )
+    msh.topology.create_connectivity(1, 2)
+    mid = dmesh.compute_midpoints(msh, 1, outer)
+    walls = outer[np.isclose(mid[:, 0], 0.0) | np.isclose(mid[:, 1], 0.0)
+                  | np.isclose(mid[:, 1], height)]  # fmt: skip
+    fixed = fem.locate_dofs_topological((Z.sub(0), Zu), 1, walls)
+    on_cylinder = fem.locate_dofs_topological((Z.sub(0), Zu), 1, cylinder)
+    zero = fem.Function(Zu)
+    bcs = [fem.dirichletbc(zero, fixed, Z.sub(0)), fem.dirichletbc(zero, on_cylinder, Z.sub(0))]
+    A = assemble_matrix(adjoint, bcs=bcs)
+    A.assemble()
+    ksp = PETSc.KSP().create(msh.comm)
+    ksp.setOperators(A)
+    ksp.setType("preonly")
+    ksp.getPC().setType("lu")
+    ksp.getPC().setFactorSolverType("mumps")
+
+    # The weights z - z_h ~ z_3 - I_2 z_3 and the residual tested with them, cell by cell.
+    # The P3 part is used through the mixed function: a collapsed copy of a blocked P3
+    # sub-space is evaluated wrongly on cells with reflected edges (DOLFINx 0.11).
+    V = fem.functionspace(msh, basix.ufl.element("Lagrange", msh.basix_cell(), 2, shape=(2,)))
+    Q = fem.functionspace(msh, basix.ufl.element("Lagrange", msh.basix_cell(), 1))
+    DG0 = fem.functionspace(msh, ("DG", 0))
+    t = ufl.TestFunction(DG0)
     n = ufl.FacetNormal(msh)
     sigma = nu * ufl.grad(u) - p * ufl.Identity(2)
     residual = -nu * ufl.div(ufl.grad(u)) + ufl.grad(u) * u + ufl.grad(p)
-    jump = ufl.jump(sigma, n)
-    form = (h**2 * ufl.inner(residual, residual) + ufl.div(u) ** 2) * v * ufl.dx
-    form += ufl.avg(h) * ufl.inner(jump, jump) * ufl.avg(v) * ufl.dS
-    eta2 = fem.assemble_vector(fem.form(form))
-    eta2.scatter_reverse(la.InsertMode.add)
-    return np.sqrt(np.maximum(eta2.array[: cells.size_local], 0.0))
+    scale = -2.0 / (U_mean**2 * diameter)
+    n_owned = msh.topology.index_map(2).size_local
+    etas = []
+    for i in range(2):
+        g = fem.Function(Zu)  # psi: component i at the cylinder's nodes
+        g.x.array[on_cylinder[1][on_cylinder[1] % 2 == i]] = 1.0
+        bcs_i = [bcs[0], fem.dirichletbc(g, on_cylinder, Z.sub(0))]
+        b = create_vector(Z)
+        with b.localForm() as local:
+            local.set(0.0)
+        apply_lifting(b, [adjoint], [bcs_i])
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        set_bc(b, bcs_i)
+        z = fem.Function(Z)
+        ksp.solve(b, z.x.petsc_vec)
+        z.x.scatter_forward()
+        b.destroy()
+        zu_h, zp_h = fem.Function(V), fem.Function(Q)
+        zu_h.interpolate(z.sub(0))
+        zp_h.interpolate(z.sub(1))
+        z_u, z_p = ufl.split(z)
+        wu, wp = z_u - zu_h, z_p - zp_h
+        form = (ufl.inner(residual, wu) - ufl.div(u) * wp) * t * ufl.dx
+        form += ufl.inner(ufl.jump(sigma, n), ufl.avg(wu)) * ufl.avg(t) * ufl.dS
+        form += ufl.inner(sigma * n, wu) * t * ufl.ds
+        eta = fem.assemble_vector(fem.form(form))
+        eta.scatter_reverse(la.InsertMode.add)
+        # J(w) - J(w_h) ~ sum eta and c = scale * J: c(w_h) - c(w) ~ -scale * sum eta.
+        etas.append(-scale * eta.array[:n_owned].copy())
+    ksp.destroy()
+    A.destroy()
+    return etas[0], etas[1]
 
 
 def adaptive_mesh(field: Callable[[np.ndarray], np.ndarray], scale: float) -> du.MeshedDomain:
@@ -421,12 +497,23 @@ def adaptive_study(
         md = adaptive_mesh(field, scale)
         mesh_s = comm.allreduce(time.perf_counter() - t0, op=MPI.MAX)
         tags = md.facet_tags
-        quantities, w = solve(
-            md.mesh, tags.find(du.OUTER), tags.find(du.IMMERSED), f"dfg_adaptive_{k}"
-        )
-        eta = error_indicators(md.mesh, w)
-        estimate = float(np.sqrt(comm.allreduce(float(np.sum(eta**2)), op=MPI.SUM)))
-        row = {"round": k, **quantities, "estimate": estimate, "mesh_s": mesh_s}
+        outer, cylinder = tags.find(du.OUTER), tags.find(du.IMMERSED)
+        quantities, w = solve(md.mesh, outer, cylinder, f"dfg_adaptive_{k}")
+        t0 = time.perf_counter()
+        eta_D, eta_L = force_indicators(md.mesh, w, outer, cylinder)
+        # Each cell's share of both relative errors: the marking's indicator (squared).
+        share = np.abs(eta_D) / abs(quantities["c_D"]) + np.abs(eta_L) / abs(quantities["c_L"])
+        eta = np.sqrt(share)
+        sums = comm.allreduce(np.array([share.sum(), eta_D.sum(), eta_L.sum()]), op=MPI.SUM)
+        row = {
+            "round": k,
+            **quantities,
+            "estimate": float(sums[0]),
+            "estimate_c_D": float(sums[1] / quantities["c_D"]),
+            "estimate_c_L": float(sums[2] / quantities["c_L"]),
+            "mesh_s": mesh_s,
+            "dual_s": comm.allreduce(time.perf_counter() - t0, op=MPI.MAX),
+        }
         rows.append(row)
         if keep:
             rounds.append(AdaptiveRound(field, md.mesh, eta))
@@ -435,8 +522,9 @@ def adaptive_study(
         log(
             comm,
             f"{k:5d} {row['n_cells']:8d} {row['n_dofs']:8d} {row['c_D']:14.10f} "
-            f"{row['c_L']:14.10f} {row['delta_p']:14.10f} {estimate:9.2e} "
-            f"{mesh_s:6.2f} {row['solve_s']:7.1f}",
+            f"{row['c_L']:14.10f} {row['delta_p']:14.10f} {row['estimate_c_D']:+9.2e} "
+            f"{row['estimate_c_L']:+9.2e} {mesh_s:6.2f} {row['solve_s']:7.1f} "
+            f"{row['dual_s']:6.1f}",
         )
         if row["n_dofs"] > max_dofs:
             break
@@ -539,15 +627,19 @@ def markdown_table(rows: list[dict]) -> str:
 
 
 def adaptive_table(rows: list[dict]) -> str:
-    """The adaptive rounds as a markdown table (relative errors, the estimate)."""
+    """The adaptive rounds as a markdown table: relative errors, the dual-weighted
+    estimates of those of ``c_D`` and ``c_L`` beside them, seconds."""
     lines = [
-        "| round | dofs | err $c_D$ | err $c_L$ | err $\\Delta p$ | estimate | mesh s | solve s |",
-        "|---|---|---|---|---|---|---|---|",
+        "| round | dofs | err $c_D$ | est. | err $c_L$ | est. | err $\\Delta p$ "
+        "| mesh s | solve s | dual |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
+        err = {k: (r[k] - reference[k]) / reference[k] for k in reference}
         lines.append(
-            f"| {r['round']} | {r['n_dofs']} {error_cells(r)} "
-            f"| {r['estimate']:.2e} | {r['mesh_s']:.2f} | {r['solve_s']:.1f} |"
+            f"| {r['round']} | {r['n_dofs']} | {err['c_D']:+.1e} | {r['estimate_c_D']:+.1e} "
+            f"| {err['c_L']:+.1e} | {r['estimate_c_L']:+.1e} | {err['delta_p']:+.1e} "
+            f"| {r['mesh_s']:.2f} | {r['solve_s']:.1f} | {r['dual_s']:.1f} |"
         )
     return "\n".join(lines)
 
@@ -558,71 +650,80 @@ def adaptive_table(rows: list[dict]) -> str:
 # ## What it gives
 #
 # The full run, as printed by `markdown_table` (relative errors against the reference
-# values; seconds of `mesh_domain` and of the solve, on a 2-core machine; 201 s in all,
+# values; seconds of `mesh_domain` and of the solve, on a 2-core machine; 334 s in all,
 # the adaptive loop included):
 #
 # | level | q | dofs | $c_D$ | $c_L$ | err $c_D$ | err $c_L$ | err $\Delta p$ | mesh s | solve s |
 # |---|---|---|---|---|---|---|---|---|---|
-# | 0 | 2 | 12983 | 5.5793398 | 0.01101804 | -3.5e-05 | +3.8e-02 | -1.2e-02 | 0.10 | 0.3 |
-# | 1 | 2 | 25548 | 5.5793418 | 0.01062918 | -3.5e-05 | +9.6e-04 | -4.6e-03 | 0.07 | 0.7 |
-# | 2 | 2 | 76234 | 5.5795189 | 0.01061785 | -2.9e-06 | -1.0e-04 | -1.5e-03 | 0.13 | 2.6 |
-# | 3 | 2 | 216706 | 5.5795335 | 0.01061866 | -3.1e-07 | -2.7e-05 | -4.3e-04 | 0.46 | 8.7 |
-# | 4 | 2 | 688364 | 5.5795351 | 0.01061894 | -2.6e-08 | -6.0e-07 | -1.4e-04 | 1.25 | 30.9 |
-# | 0 | 3 | 12983 | 5.5793718 | 0.01097193 | -2.9e-05 | +3.3e-02 | -1.2e-02 | 0.06 | 0.3 |
-# | 1 | 3 | 25548 | 5.5793474 | 0.01062994 | -3.4e-05 | +1.0e-03 | -4.6e-03 | 0.10 | 0.7 |
-# | 2 | 3 | 76234 | 5.5795191 | 0.01061800 | -2.9e-06 | -8.9e-05 | -1.5e-03 | 0.15 | 2.7 |
-# | 3 | 3 | 216706 | 5.5795335 | 0.01061867 | -3.1e-07 | -2.6e-05 | -4.3e-04 | 0.39 | 8.3 |
-# | 4 | 3 | 688364 | 5.5795351 | 0.01061894 | -2.6e-08 | -6.1e-07 | -1.4e-04 | 1.09 | 31.7 |
+# | 0 | 2 | 12983 | 5.5791455 | 0.01144663 | -7.0e-05 | +7.8e-02 | -9.7e-03 | 0.06 | 0.3 |
+# | 1 | 2 | 25548 | 5.5793268 | 0.01060313 | -3.7e-05 | -1.5e-03 | -5.3e-03 | 0.06 | 0.7 |
+# | 2 | 2 | 76234 | 5.5795151 | 0.01061860 | -3.6e-06 | -3.2e-05 | -1.2e-03 | 0.13 | 2.2 |
+# | 3 | 2 | 216706 | 5.5795335 | 0.01061875 | -3.2e-07 | -1.9e-05 | -4.7e-04 | 0.32 | 7.2 |
+# | 4 | 2 | 688364 | 5.5795351 | 0.01061894 | -2.7e-08 | -7.4e-07 | -1.5e-04 | 1.16 | 27.3 |
+# | 0 | 3 | 12983 | 5.5791819 | 0.01139278 | -6.3e-05 | +7.3e-02 | -9.7e-03 | 0.05 | 0.3 |
+# | 1 | 3 | 25548 | 5.5793329 | 0.01060398 | -3.6e-05 | -1.4e-03 | -5.3e-03 | 0.07 | 0.6 |
+# | 2 | 3 | 76234 | 5.5795152 | 0.01061881 | -3.6e-06 | -1.3e-05 | -1.2e-03 | 0.13 | 2.3 |
+# | 3 | 3 | 216706 | 5.5795335 | 0.01061875 | -3.1e-07 | -1.9e-05 | -4.7e-04 | 0.33 | 7.5 |
+# | 4 | 3 | 688364 | 5.5795351 | 0.01061894 | -2.7e-08 | -7.7e-07 | -1.5e-04 | 1.02 | 27.4 |
 #
 # The finest level matches the drag to $3 \cdot 10^{-8}$ and the lift to
-# $6 \cdot 10^{-7}$ relative (the check below asks for $10^{-4}$ and $10^{-2}$), with five
+# $7 \cdot 10^{-7}$ relative (the check below asks for $10^{-4}$ and $10^{-2}$), with five
 # Newton steps at every level. With the geometry's sizing alone (the demo before the size
 # field) the same number of degrees of freedom gave $4.2 \cdot 10^{-7}$ and
-# $2.1 \cdot 10^{-5}$: the field is 16 and 35 times more accurate there, for the reason
-# given above. Degree-3 geometry changes $c_D$ by $6 \cdot 10^{-6}$ relative at level 0 and by
-# $3 \cdot 10^{-10}$ at level 4: from level 2 on, the error of the $P_2/P_1$ solution
+# $2.1 \cdot 10^{-5}$: the field is 16 and 28 times more accurate there, for the reason
+# given above. Degree-3 geometry changes $c_D$ by $7 \cdot 10^{-6}$ relative at level 0 and
+# by $3 \cdot 10^{-10}$ at level 4: from level 2 on, the error of the $P_2/P_1$ solution
 # dominates that of the degree-2 boundary. $\Delta p$, a point value of the $P_1$
 # pressure on the boundary, converges more slowly: the two points lie wherever the
 # quadtree puts them along a boundary edge (gmsh's meshes have vertices there, the circle's
 # nodes starting at angle 0).
 #
-# The adaptive loop (`adaptive_table`; $\theta = 0.3$, from level 0's field):
+# The adaptive loop (`adaptive_table`; $\theta = 0.3$, from level 0's field), the
+# dual-weighted estimates of the errors beside the errors:
 #
-# | round | dofs | err $c_D$ | err $c_L$ | err $\Delta p$ | estimate | mesh s | solve s |
-# |---|---|---|---|---|---|---|---|
-# | 0 | 12983 | -3.5e-05 | +3.8e-02 | -1.2e-02 | 4.42e-02 | 0.06 | 0.3 |
-# | 1 | 17670 | -4.1e-05 | -1.1e-01 | +5.1e-03 | 2.12e-02 | 0.11 | 0.5 |
-# | 2 | 19776 | -3.9e-05 | -7.9e-03 | +5.4e-03 | 1.51e-02 | 0.14 | 0.5 |
-# | 3 | 34469 | -8.9e-06 | -2.5e-03 | -1.3e-03 | 7.25e-03 | 0.19 | 0.9 |
-# | 4 | 53753 | -1.9e-06 | +9.7e-05 | -1.0e-03 | 4.36e-03 | 0.24 | 1.4 |
-# | 5 | 107779 | -3.9e-07 | -9.4e-05 | -3.8e-04 | 2.05e-03 | 0.34 | 3.2 |
-# | 6 | 196034 | -1.0e-08 | +5.7e-06 | -4.0e-04 | 1.11e-03 | 0.51 | 6.8 |
-# | 7 | 362009 | +5.7e-08 | +4.5e-06 | +6.3e-05 | 5.87e-04 | 0.78 | 13.7 |
-# | 8 | 633835 | +4.2e-09 | +9.0e-07 | +3.7e-05 | 3.24e-04 | 1.50 | 25.6 |
-# | 9 | 1096745 | +6.6e-09 | +1.5e-07 | -1.3e-05 | 1.89e-04 | 2.43 | 45.6 |
+# | round | dofs | err $c_D$ | est. | err $c_L$ | est. | err $\Delta p$ | mesh s | solve s | dual |
+# |---|---|---|---|---|---|---|---|---|---|
+# | 0 | 12983 | -7.0e-05 | -4.1e-05 | +7.8e-02 | +6.5e-02 | -9.7e-03 | 0.05 | 0.3 | 0.3 |
+# | 1 | 19286 | -6.8e-05 | -6.8e-05 | +2.6e-02 | +2.6e-02 | +3.9e-03 | 0.07 | 0.4 | 0.4 |
+# | 2 | 29949 | -1.9e-05 | -1.9e-05 | -7.6e-03 | -7.2e-03 | -1.3e-03 | 0.10 | 0.7 | 0.8 |
+# | 3 | 34495 | -7.0e-06 | -7.0e-06 | +4.6e-05 | +3.1e-05 | -1.3e-03 | 0.13 | 0.8 | 0.9 |
+# | 4 | 59036 | +1.2e-06 | +1.2e-06 | -2.1e-06 | +2.0e-05 | -6.1e-04 | 0.21 | 1.5 | 1.6 |
+# | 5 | 106226 | -2.2e-07 | -2.2e-07 | +1.3e-04 | +1.2e-04 | -2.9e-04 | 0.27 | 3.1 | 3.1 |
+# | 6 | 201196 | +7.2e-08 | +7.3e-08 | -3.8e-06 | -3.6e-06 | -3.4e-04 | 0.50 | 6.2 | 6.4 |
+# | 7 | 370097 | +6.7e-09 | +6.9e-09 | +6.4e-07 | +5.7e-07 | +1.1e-04 | 0.67 | 12.5 | 16.9 |
+# | 8 | 662251 | +4.5e-09 | +4.6e-09 | -4.1e-07 | -4.8e-07 | +6.0e-05 | 1.16 | 23.9 | 33.8 |
+# | 9 | 1196016 | -2.8e-10 | -2.3e-10 | +1.4e-08 | -6.3e-08 | -1.2e-05 | 2.19 | 61.1 | 71.1 |
 #
-# The estimate falls like $N^{-1}$ from round 5 on ($2.05 \cdot 10^{-3}$ to
-# $1.89 \cdot 10^{-4}$ for ten times the degrees of freedom): the optimal rate of $P_2$,
-# $h^2$. Where it refines is in `adaptive_mesh.png` (round 5). At $6.3 \cdot 10^5$
-# degrees of freedom the drag error is $4.2 \cdot 10^{-9}$ (the field's level 4:
-# $2.6 \cdot 10^{-8}$ at $6.9 \cdot 10^5$), the lift error $9.0 \cdot 10^{-7}$
-# ($6.0 \cdot 10^{-7}$) and that of $\Delta p$ $3.7 \cdot 10^{-5}$ ($1.4 \cdot 10^{-4}$);
-# the errors of $c_D$ and $c_L$ change sign along the way, so a single round can be
-# luckier than the trend. Each round costs one `mesh_domain` (the background's quadtree
-# rebuilt from the new field and the circle conformed to it: 0.06 s to 2.4 s) beside the
-# solve.
+# From round 1 on the estimate of the drag's error is within 4 % of the error (up to
+# $3 \cdot 10^{-10}$, where it is 18 % off); that of the lift is within
+# $2 \cdot 10^{-5}$ of its error (round 4, where the error passes through zero) and
+# within $2 \cdot 10^{-7}$ from round 6 on: the loop knows how accurate its forces are.
+# In the three finest rounds the lift's error and its estimate differ by the same
+# $7 \cdot 10^{-8}$ relative ($8 \cdot 10^{-10}$ absolute), whether from terms the
+# estimate leaves out or from the last digits of the reference value. At
+# $6.6 \cdot 10^5$ degrees of freedom the drag error is $4.5 \cdot 10^{-9}$ (the field's
+# level 4: $2.7 \cdot 10^{-8}$ at $6.9 \cdot 10^5$), the lift error $4.1 \cdot 10^{-7}$
+# ($7.4 \cdot 10^{-7}$) and that of $\Delta p$ $6.0 \cdot 10^{-5}$ ($1.5 \cdot 10^{-4}$).
+# The lift's error changes sign from round to round (a small difference of large forces),
+# so a single round can be luckier or unluckier than the trend: $1.3 \cdot 10^{-4}$ at
+# $1.1 \cdot 10^5$, then $3.8 \cdot 10^{-6}$ at $2.0 \cdot 10^5$. Where it refines is in
+# `adaptive_mesh.png` (round 5). Each round costs one `mesh_domain` (the background's
+# quadtree rebuilt from the new field and the circle conformed to it: 0.05 s to 2.2 s),
+# the solve and the dual solve ($P_3/P_2$, one factorisation for both forces: about as
+# long as Newton's five steps, 71 s against 61 s at $1.2 \cdot 10^6$ degrees of freedom).
 #
 # `benchmarks/dfg_vs_gmsh.py` runs `solve` on body-fitted gmsh meshes (the FEniCSx
 # tutorial's Threshold field and two finer at the cylinder, `setOrder(2)`) and on this
 # demo's meshes at equal numbers of degrees of freedom: the field's levels and the
-# adaptive loop (its last step's Dörfler fraction chosen to give the same number). From
-# $6 \cdot 10^4$ degrees of freedom on, the adaptive meshes' drag error is below that of
-# every gmsh mesh (at $7 \cdot 10^5$: $5$ to $8 \cdot 10^{-9}$ against $2 \cdot 10^{-8}$
-# to $2 \cdot 10^{-7}$), and at $7 \cdot 10^5$ their lift error too ($7 \cdot 10^{-8}$ to
-# $1.3 \cdot 10^{-6}$ against $1.5 \cdot 10^{-6}$ to $8.8 \cdot 10^{-6}$); at
-# $8.8 \cdot 10^4$ and $2.5 \cdot 10^5$ the gmsh mesh graded like this demo's field has
-# the smaller lift error. Meshing is 5.7 to 6.8 times faster than gmsh's generate and
-# `model_to_mesh` at $7 \cdot 10^5$ with the field, 4.5 to 5.9 times with the adaptive
+# adaptive loop (its last step's Dörfler fraction chosen to give the same number).
+# From $6 \cdot 10^4$ degrees of freedom on, the adaptive meshes' drag error is below that
+# of every gmsh mesh (at $7 \cdot 10^5$: $5 \cdot 10^{-10}$ to $6 \cdot 10^{-9}$ against
+# $2 \cdot 10^{-8}$ to $2 \cdot 10^{-7}$), and so is their lift error in eight of the nine
+# comparisons (at $7 \cdot 10^5$: $2.4 \cdot 10^{-7}$ to $8.7 \cdot 10^{-7}$ against
+# $1.5 \cdot 10^{-6}$ to $8.8 \cdot 10^{-6}$); at $8.8 \cdot 10^4$ the gmsh mesh graded
+# like this demo's field has the smaller lift error ($5.5 \cdot 10^{-5}$ against
+# $1.6 \cdot 10^{-4}$). Meshing is 5.7 to 6.5 times faster than gmsh's generate and
+# `model_to_mesh` at $7 \cdot 10^5$ with the field, 4.3 to 4.7 times with the adaptive
 # field (README, "DFG per degree of freedom against gmsh", for the table).
 #
 # ## The study
@@ -648,7 +749,8 @@ def main(argv: Sequence[str] | None = None) -> dict:
     log(
         comm,
         f"adaptive:\n{'round':>5} {'cells':>8} {'dofs':>8} {'c_D':>14} {'c_L':>14} "
-        f"{'delta_p':>14} {'estimate':>9} {'mesh s':>6} {'solve s':>7}",
+        f"{'delta_p':>14} {'est c_D':>9} {'est c_L':>9} {'mesh s':>6} {'solve s':>7} "
+        f"{'dual s':>6}",
     )
     finest_dofs = max(r["n_dofs"] for r in rows)
     adaptive, _, shown_adaptive = adaptive_study(finest_dofs)
