@@ -52,6 +52,7 @@ from .relax import (
     MAX_STEP,
     TIE,
     Relaxation,
+    RelaxFrame,
     _Sub,
     coordinate_priority,
 )
@@ -249,6 +250,7 @@ def relax_tetrahedra(
     phi: Float,
     h: Float,
     sweeps: int | None = None,
+    frame: RelaxFrame | None = None,
 ) -> Relaxation:
     """:func:`relax.relax_vertices` for tetrahedra (collective; same arguments)."""
     y0, y, xp = y, y.copy(), xp.copy()
@@ -260,13 +262,14 @@ def relax_tetrahedra(
     local = np.full(len(y), -1, dtype=np.int64)
     local[verts] = np.arange(m)
     csub = local[cells]
-    colour = vertex_colours_graph(sub, csub, coordinate_priority(x0[verts]))
+    priority = coordinate_priority(x0[verts]) if frame is None else frame.priority(x0[verts])
+    colour = vertex_colours_graph(sub, csub, priority)
     ncol = comm.allreduce(int(colour.max(initial=-1)) + 1, op=MPI.MAX)
     stars = _TetStars(y, cells, csub, colour, ncol, verts, on_gamma, h)
     ev, cell_idx = stars.ev, stars.cell_idx
     bounds = np.searchsorted(colour[ev], np.arange(ncol + 1))
     groups = [np.flatnonzero(colour == k) for k in range(ncol)]
-    search = _Directional(comm, sub, closest_normal, stars, normal, on_gamma, h)
+    search = _Directional(comm, sub, closest_normal, stars, normal, on_gamma, h, frame)
     todo = np.ones(m, dtype=bool)
     num_moves, done = 0, 0
     for sweep in range(sweeps):
@@ -398,8 +401,10 @@ class _Directional:
         normal: Float,
         on_gamma: Bool,
         h: Float,
+        frame: RelaxFrame | None = None,
     ) -> None:
         self.comm, self.sub, self.closest_normal, self.stars = comm, sub, closest_normal, stars
+        self.frame = frame
         verts = sub.vertices
         self.gamma_v = on_gamma[verts]
         self.nrm = normal.copy()  # normals at the current positions of the vertices on Gamma
@@ -498,6 +503,8 @@ class _Directional:
         rE, S = v.rE, v.S
         cs = np.flatnonzero(stuck[rE])
         dirs = tet.directions(COMPASS, turn)
+        if self.frame is not None:
+            dirs = self.frame.directions(dirs)
         sx, sy, sz = (a[cs] for a in (ux, uy, uz))
         sig = dirs[:, 0, None] * nx[cs] + dirs[:, 1, None] * ny[cs] + dirs[:, 2, None] * nz[cs]
         beta2 = 2.0 * (dirs[:, 0, None] * sx + dirs[:, 1, None] * sy + dirs[:, 2, None] * sz)
@@ -531,7 +538,13 @@ class _Directional:
         tg = v.tb[gi, None] * SLIDE_STEPS[None]
         pc = yG[:, None, :] + tg[..., None] * v.dv[gi][:, None, :]
         if SLIDES:  # and a compass in the tangent plane at the current step
-            td = tet.tangent_directions(self.nrm[verts[G]], SLIDES, turn)
+            if self.frame is None:
+                td = tet.tangent_directions(self.nrm[verts[G]], SLIDES, turn)
+            else:  # built on the normals in the frame, turned back
+                R = self.frame.rotation
+                td = self.frame.directions(
+                    tet.tangent_directions(self.nrm[verts[G]] @ R, SLIDES, turn)
+                )
             pc = np.concatenate([pc, yG[:, None, :] + self.step[G, None, None] * td], axis=1)
             tg = np.concatenate([tg, np.repeat(self.step[G, None], SLIDES, axis=1)], axis=1)
         ns = pc.shape[1]

@@ -46,7 +46,7 @@ from .pipeline import (
     relocate,
     scan_cells,
 )
-from .relax import movable_vertices, relax_vertices
+from .relax import RelaxFrame, movable_vertices, relax_vertices
 from .validation import MeshingError, Problem, collective_call, raise_collective
 
 if TYPE_CHECKING:
@@ -317,6 +317,14 @@ class UniversalMesh:
         tetrahedra: mean ratio) of the kept cells around them; connectivity unchanged, a
         move is kept only if it helps and keeps the cells valid. ``False`` gives the plain
         ``M_h`` images.
+    relax_frame
+        The frame of the relaxation's choices (colour priorities, search directions):
+        ``"world"`` (fixed axes), or ``"body"``: the frame of the domain's first
+        :class:`~dolfinx_universal.boundaries.RigidMotion` (its bodies first, then its
+        container; the world if there is none). With ``"body"``, a motion that maps the
+        background onto itself (a half turn about a symmetry axis of the lattice, a
+        translation by a lattice period) maps the relaxed mesh onto the relaxed mesh, to
+        rounding: a periodic motion gives periodic meshes and forces.
     """
 
     def __init__(
@@ -331,6 +339,7 @@ class UniversalMesh:
         min_angle: float = 10.0,
         on_low_quality: str = "warn",
         relax: bool = True,
+        relax_frame: str = "world",
     ) -> None:
         _check_background(background)
         eta, min_angle = float(eta), float(min_angle)
@@ -343,6 +352,9 @@ class UniversalMesh:
             )
         if on_low_quality not in ("warn", "raise"):
             raise ValueError(f"on_low_quality must be 'warn' or 'raise', got {on_low_quality!r}")
+        if relax_frame not in ("world", "body"):
+            raise ValueError(f"relax_frame must be 'world' or 'body', got {relax_frame!r}")
+        self.relax_frame = relax_frame
         self.background = background
         self.eta, self.min_angle, self.on_low_quality = eta, min_angle, on_low_quality
         self.relax = bool(relax)
@@ -498,7 +510,7 @@ class UniversalMesh:
             movable = movable_vertices(imv, s, band, pe.on_gamma, pe.in_kept, outer)
             y, xp, moved = relax_vertices(
                 comm, imv, boundary.closest_normal, x, xp, y, pe.near_kept_cv, movable,
-                pe.on_gamma, normal, phi, self.h,
+                pe.on_gamma, normal, phi, self.h, frame=self._relax_frame(boundary),
             )[:3]  # fmt: skip
             timings["relax"] = time.perf_counter() - t_relax
         angle_range = self._check_quality(y, moved, pe.near_kept_cv, measures)
@@ -610,6 +622,18 @@ class UniversalMesh:
             total += moved
             pe = gamma_h(self._imv, s, self._c2v, near_cells, bc)
         return pe, total
+
+    def _relax_frame(self, boundary: Boundary) -> RelaxFrame | None:
+        """The relaxation's frame for ``boundary`` (``None``: the world's axes)."""
+        from .boundaries import RigidMotion
+
+        if self.relax_frame == "world":
+            return None
+        parts = list(getattr(boundary, "bodies", ())) + [getattr(boundary, "container", None)]
+        for part in [boundary, *parts]:
+            if isinstance(part, RigidMotion):  # frame coordinates (x - c - t) @ R
+                return RelaxFrame(part.rotation, part.center + part.translation)
+        return None
 
     def _surface_parts(self, boundary: Boundary, band_idx: npt.NDArray) -> SurfaceParts:
         """Samples of the surfaces of Gamma, about a quarter of the mesh size apart (cached
@@ -770,7 +794,7 @@ def conform(
     background: dmesh.Mesh, boundary: Boundary, *, R_r: float | None = None,
     alpha: float | None = None, eta: float = 0.2, relaxation_factor: float = 3.0,
     local_size: bool = False, min_angle: float = 10.0, on_low_quality: str = "warn",
-    relax: bool = True,
+    relax: bool = True, relax_frame: str = "world",
 ) -> ConformingMesh:  # fmt: skip
     """Conform a background triangulation to the domain bounded by ``boundary``.
 
@@ -783,7 +807,7 @@ def conform(
         The background mesh, as in :class:`UniversalMesh`.
     boundary
         The domain (signs, closest points, normals).
-    R_r, alpha, eta, relaxation_factor, local_size, min_angle, on_low_quality, relax
+    R_r, alpha, eta, relaxation_factor, local_size, min_angle, on_low_quality, relax, relax_frame
         Options of :class:`UniversalMesh`.
 
     Returns
@@ -799,5 +823,6 @@ def conform(
     um = UniversalMesh(
         background, R_r=R_r, alpha=alpha, eta=eta, relaxation_factor=relaxation_factor,
         local_size=local_size, min_angle=min_angle, on_low_quality=on_low_quality, relax=relax,
+        relax_frame=relax_frame,
     )  # fmt: skip
     return um.conform(boundary)

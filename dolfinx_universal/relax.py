@@ -53,6 +53,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "Relaxation",
+    "RelaxFrame",
     "coordinate_priority",
     "shape_quality",
     "movable_vertices",
@@ -221,6 +222,41 @@ def coordinate_priority(x: Float) -> Float:
     return (z >> np.uint64(11)).astype(np.float64) * 2.0**-53
 
 
+class RelaxFrame(NamedTuple):
+    """A frame for the vertex relaxation: positions ``x`` have frame coordinates
+    ``(x - origin) @ rotation``, and directions are taken in the frame (``d @ rotation.T``
+    in the world). The relaxation's choices (colour priorities, search directions) then
+    move with the frame: a rigid motion of the domain and the frame that maps the
+    background onto itself maps the relaxed mesh onto the relaxed mesh."""
+
+    rotation: Float
+    """Rotation matrix ``(gdim, gdim)``: frame axes in world coordinates (its columns)."""
+    origin: Float
+    """Origin ``(gdim,)`` of the frame in world coordinates."""
+
+    def directions(self, d: Float) -> Float:
+        """Directions ``(..., gdim)`` given in the frame, in world coordinates."""
+        return np.asarray(d) @ self.rotation.T
+
+    def priority(self, x: Float) -> Float:
+        """:func:`coordinate_priority` of the frame coordinates of ``x`` ``(n, gdim)``.
+
+        The frame coordinates of the same background vertex at two symmetric positions
+        differ by rounding, so they are snapped to a grid of :data:`FRAME_GRID` (a fixed
+        length: the same on every rank) before hashing: equal unless a coordinate lies
+        within rounding of a grid line (coordinates up to about ``1e3`` round by less than
+        ``1e-13``).
+        """
+        y = (np.asarray(x, dtype=np.float64) - self.origin) @ self.rotation
+        return coordinate_priority(np.floor(y / FRAME_GRID + _FRAME_OFFSET))
+
+
+FRAME_GRID = 2.0**-36
+"""Grid (in length units) that :meth:`RelaxFrame.priority` snaps frame coordinates to."""
+_FRAME_OFFSET = 0.3183098861837907
+"""1 / pi: the grid's offset in cells (lattice coordinates are round numbers)."""
+
+
 class _Sub:
     """The movable vertices as a (sub) index map: reductions over them only."""
 
@@ -312,6 +348,7 @@ def relax_vertices(
     h: Float,
     *,
     sweeps: int | None = None,
+    frame: RelaxFrame | None = None,
 ) -> Relaxation:
     """Relax the images of vertices to raise the worst :func:`shape_quality` (collective).
 
@@ -357,6 +394,9 @@ def relax_vertices(
         Mesh size at each vertex ``(num_vertices,)`` (scales the steps).
     sweeps
         Sweeps over all colours (fewer when two sweeps in a row move nothing).
+    frame
+        The frame of the colour priorities and the search directions (default: the world's
+        axes, priorities from the background positions ``x0``).
 
     Returns
     -------
@@ -367,7 +407,7 @@ def relax_vertices(
 
         return relax_tetrahedra(
             comm, imv, closest_normal, x0, xp, y, cells, movable, on_gamma, normal, phi, h,
-            sweeps=sweeps,
+            sweeps=sweeps, frame=frame,
         )  # fmt: skip
     from ._dvr import vertex_colours_graph  # the colours of vertex_colours, in less time
 
@@ -380,7 +420,8 @@ def relax_vertices(
     local = np.full(len(y), -1, dtype=np.int64)
     local[verts] = np.arange(m)
     csub = local[cells]
-    colour = vertex_colours_graph(sub, csub, coordinate_priority(x0[verts]))
+    priority = coordinate_priority(x0[verts]) if frame is None else frame.priority(x0[verts])
+    colour = vertex_colours_graph(sub, csub, priority)
     ncol = comm.allreduce(int(colour.max(initial=-1)) + 1, op=MPI.MAX)
     stars = _Stars(y, cells, csub, colour, verts, on_gamma, h)
     ev = stars.ev
@@ -388,7 +429,7 @@ def relax_vertices(
     groups = [
         (slice(bounds[k], bounds[k + 1]), np.flatnonzero(colour == k)) for k in range(ncol)
     ]  # each colour's entries, and its vertices (with or without entries on this rank)
-    compass = _Compass(comm, sub, closest_normal, y, normal, on_gamma, h)
+    compass = _Compass(comm, sub, closest_normal, y, normal, on_gamma, h, frame)
     # A vertex is worked on below the targets and below what its background star offered.
     target = sub.reduce(ACTIVE_RATIO * stars.background_minima(x0, m), "min")
     np.minimum(target, ACTIVE_BELOW, out=target)
@@ -545,8 +586,10 @@ class _Compass:
         normal: Float,
         on_gamma: Bool,
         h: Float,
+        frame: RelaxFrame | None = None,
     ) -> None:
         self.comm, self.sub, self.closest_normal, self.y = comm, sub, closest_normal, y
+        self.frame = frame
         verts = sub.vertices
         self.gamma = np.flatnonzero(on_gamma[verts])
         self.tangent = rot90(normal[verts[self.gamma]])  # Omega on their left
@@ -576,6 +619,8 @@ class _Compass:
         golden = np.pi * (3.0 - np.sqrt(5.0))
         theta = sweep * golden + 2.0 * np.pi * np.arange(DIRECTIONS) / DIRECTIONS
         dirs = np.column_stack([np.cos(theta), np.sin(theta)])
+        if self.frame is not None:
+            dirs = self.frame.directions(dirs)
         offsets = np.concatenate(
             [np.zeros((1, dim)), (np.asarray(STEPS)[:, None, None] * dirs).reshape(-1, dim)]
         )
