@@ -120,6 +120,8 @@ U_max, nu = 0.3, 1e-3
 U_mean, diameter = 2 * U_max / 3, 2 * radius
 front, back = (0.15, 0.2), (0.25, 0.2)
 reference = {"c_D": 5.57953523384, "c_L": 0.010618948146, "delta_p": 0.11752016697}
+force_scale = -2.0 / (U_mean**2 * diameter)
+"""c = force_scale * R((u, p); v): a force coefficient from the weak residual."""
 # -
 
 # ## The mesh size
@@ -227,6 +229,23 @@ def n_dofs(msh: dmesh.Mesh) -> int:
     return 3 * vertices + 2 * edges
 
 
+def dirichlet_facets(msh: dmesh.Mesh, outer: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The local ``outer`` facets on the inflow (x = 0) and on the walls (y = 0, H)."""
+    msh.topology.create_connectivity(1, 2)
+    mid = dmesh.compute_midpoints(msh, 1, outer)
+    walls = np.isclose(mid[:, 1], 0.0) | np.isclose(mid[:, 1], height)
+    return outer[np.isclose(mid[:, 0], 0.0)], outer[walls]
+
+
+def on_cylinder_field(V: fem.FunctionSpace, dofs: np.ndarray, i: int) -> fem.Function:
+    """The field of the vector space ``V`` equal to ``e_i`` at the cylinder's nodes
+    (``dofs``: their unrolled dofs in ``V``, component ``i`` at ``i`` mod 2) and zero at
+    every other node."""
+    f = fem.Function(V)
+    f.x.array[dofs[dofs % 2 == i]] = 1.0
+    return f
+
+
 def solve(
     msh: dmesh.Mesh, outer: np.ndarray, cylinder: np.ndarray, name: str = "dfg"
 ) -> tuple[dict, fem.Function]:
@@ -242,20 +261,13 @@ def solve(
     V, _ = W.sub(0).collapse()
 
     # Dirichlet data: inflow on x = 0, zero on the walls and the cylinder.
-    msh.topology.create_connectivity(1, 2)
-    mid = dmesh.compute_midpoints(msh, 1, outer)
-    at_inflow = np.isclose(mid[:, 0], 0.0)
-    at_wall = np.isclose(mid[:, 1], 0.0) | np.isclose(mid[:, 1], height)
+    at_inflow, at_wall = dirichlet_facets(msh, outer)
     u_in, u_zero = fem.Function(V), fem.Function(V)
     u_in.interpolate(inflow)
     on_cylinder = fem.locate_dofs_topological((W.sub(0), V), 1, cylinder)
     bcs = [
-        fem.dirichletbc(
-            u_in, fem.locate_dofs_topological((W.sub(0), V), 1, outer[at_inflow]), W.sub(0)
-        ),
-        fem.dirichletbc(
-            u_zero, fem.locate_dofs_topological((W.sub(0), V), 1, outer[at_wall]), W.sub(0)
-        ),
+        fem.dirichletbc(u_in, fem.locate_dofs_topological((W.sub(0), V), 1, at_inflow), W.sub(0)),
+        fem.dirichletbc(u_zero, fem.locate_dofs_topological((W.sub(0), V), 1, at_wall), W.sub(0)),
         fem.dirichletbc(u_zero, on_cylinder, W.sub(0)),
     ]
 
@@ -295,12 +307,9 @@ def solve(
         raise RuntimeError(f"Newton's method failed ({name}): reason {reason}")
 
     # The forces from the weak residual with v = v_D, v_L on the cylinder nodes.
-    tests = [fem.Function(V), fem.Function(V)]
-    for i, test in enumerate(tests):  # unrolled dofs: component i at the dofs = i (mod 2)
-        test.x.array[on_cylinder[1][on_cylinder[1] % 2 == i]] = 1.0
-    scale = -2.0 / (U_mean**2 * diameter)
+    tests = [on_cylinder_field(V, on_cylinder[1], i) for i in range(2)]
     c_D, c_L = (
-        scale * comm.allreduce(fem.assemble_scalar(fem.form(momentum(test))), op=MPI.SUM)
+        force_scale * comm.allreduce(fem.assemble_scalar(fem.form(momentum(test))), op=MPI.SUM)
         for test in tests
     )
     p_h = w.sub(1).collapse()
@@ -405,11 +414,9 @@ def force_indicators(
         )
         * ufl.dx
     )
-    msh.topology.create_connectivity(1, 2)
-    mid = dmesh.compute_midpoints(msh, 1, outer)
-    walls = outer[np.isclose(mid[:, 0], 0.0) | np.isclose(mid[:, 1], 0.0)
-                  | np.isclose(mid[:, 1], height)]  # fmt: skip
-    fixed = fem.locate_dofs_topological((Z.sub(0), Zu), 1, walls)
+    fixed = fem.locate_dofs_topological(
+        (Z.sub(0), Zu), 1, np.concatenate(dirichlet_facets(msh, outer))
+    )
     on_cylinder = fem.locate_dofs_topological((Z.sub(0), Zu), 1, cylinder)
     zero = fem.Function(Zu)
     bcs = [fem.dirichletbc(zero, fixed, Z.sub(0)), fem.dirichletbc(zero, on_cylinder, Z.sub(0))]
@@ -431,12 +438,10 @@ def force_indicators(
     n = ufl.FacetNormal(msh)
     sigma = nu * ufl.grad(u) - p * ufl.Identity(2)
     residual = -nu * ufl.div(ufl.grad(u)) + ufl.grad(u) * u + ufl.grad(p)
-    scale = -2.0 / (U_mean**2 * diameter)
     n_owned = msh.topology.index_map(2).size_local
     etas = []
     for i in range(2):
-        g = fem.Function(Zu)  # psi: component i at the cylinder's nodes
-        g.x.array[on_cylinder[1][on_cylinder[1] % 2 == i]] = 1.0
+        g = on_cylinder_field(Zu, on_cylinder[1], i)  # psi
         bcs_i = [bcs[0], fem.dirichletbc(g, on_cylinder, Z.sub(0))]
         b = create_vector(Z)
         with b.localForm() as local:
@@ -458,8 +463,8 @@ def force_indicators(
         form += ufl.inner(sigma * n, wu) * t * ufl.ds
         eta = fem.assemble_vector(fem.form(form))
         eta.scatter_reverse(la.InsertMode.add)
-        # J(w) - J(w_h) ~ sum eta and c = scale * J: c(w_h) - c(w) ~ -scale * sum eta.
-        etas.append(-scale * eta.array[:n_owned].copy())
+        # J(w) - J(w_h) ~ sum eta and c = force_scale * J: c(w_h) - c(w) ~ -force_scale * sum eta.
+        etas.append(-force_scale * eta.array[:n_owned].copy())
     ksp.destroy()
     A.destroy()
     return etas[0], etas[1]
@@ -606,9 +611,14 @@ def figures(
     save(fig, out / "convergence.png")
 
 
+def relative_errors(row: dict) -> dict[str, float]:
+    """The relative errors of ``row``'s quantities against ``reference``."""
+    return {k: (row[k] - reference[k]) / reference[k] for k in reference}
+
+
 def error_cells(row: dict) -> str:
     """The relative errors of ``row``'s quantities against ``reference``, as table cells."""
-    return " ".join(f"| {(row[k] - reference[k]) / reference[k]:+.1e}" for k in reference)
+    return " ".join(f"| {e:+.1e}" for e in relative_errors(row).values())
 
 
 def markdown_table(rows: list[dict]) -> str:
@@ -635,7 +645,7 @@ def adaptive_table(rows: list[dict]) -> str:
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
-        err = {k: (r[k] - reference[k]) / reference[k] for k in reference}
+        err = relative_errors(r)
         lines.append(
             f"| {r['round']} | {r['n_dofs']} | {err['c_D']:+.1e} | {r['estimate_c_D']:+.1e} "
             f"| {err['c_L']:+.1e} | {r['estimate_c_L']:+.1e} | {err['delta_p']:+.1e} "

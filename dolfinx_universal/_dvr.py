@@ -54,7 +54,7 @@ from .relax import (
     Relaxation,
     RelaxFrame,
     _Sub,
-    coordinate_priority,
+    vertex_priority,
 )
 from .validation import collective_call
 
@@ -262,8 +262,7 @@ def relax_tetrahedra(
     local = np.full(len(y), -1, dtype=np.int64)
     local[verts] = np.arange(m)
     csub = local[cells]
-    priority = coordinate_priority(x0[verts]) if frame is None else frame.priority(x0[verts])
-    colour = vertex_colours_graph(sub, csub, priority)
+    colour = vertex_colours_graph(sub, csub, vertex_priority(x0[verts], frame))
     ncol = comm.allreduce(int(colour.max(initial=-1)) + 1, op=MPI.MAX)
     stars = _TetStars(y, cells, csub, colour, ncol, verts, on_gamma, h)
     ev, cell_idx = stars.ev, stars.cell_idx

@@ -257,6 +257,12 @@ _FRAME_OFFSET = 0.3183098861837907
 """1 / pi: the grid's offset in cells (lattice coordinates are round numbers)."""
 
 
+def vertex_priority(x0: Float, frame: RelaxFrame | None) -> Float:
+    """The colour priorities of vertices at background positions ``x0`` ``(n, gdim)``:
+    :func:`coordinate_priority`, or :meth:`RelaxFrame.priority` in ``frame``."""
+    return coordinate_priority(x0) if frame is None else frame.priority(x0)
+
+
 class _Sub:
     """The movable vertices as a (sub) index map: reductions over them only."""
 
@@ -420,8 +426,7 @@ def relax_vertices(
     local = np.full(len(y), -1, dtype=np.int64)
     local[verts] = np.arange(m)
     csub = local[cells]
-    priority = coordinate_priority(x0[verts]) if frame is None else frame.priority(x0[verts])
-    colour = vertex_colours_graph(sub, csub, priority)
+    colour = vertex_colours_graph(sub, csub, vertex_priority(x0[verts], frame))
     ncol = comm.allreduce(int(colour.max(initial=-1)) + 1, op=MPI.MAX)
     stars = _Stars(y, cells, csub, colour, verts, on_gamma, h)
     ev = stars.ev
