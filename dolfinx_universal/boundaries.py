@@ -239,6 +239,8 @@ def _candidates(
             if w != max(_WINDOWS):  # only the points its clearance settles
                 d, j = d0[sub], j0[sub]
                 sub = sub[(cw[j] - d) * (1 - 1e-9) > (d + reach) * (1 + 1e-9) + 1e-300]
+            if not len(sub):
+                continue
             done, pi, si = _window_candidates(
                 x[sub], d0[sub], j0[sub], tree, pts, nxt, reach, cw, w
             )
@@ -321,25 +323,35 @@ def _window_candidates(
     """
     n = len(pts)
     lim = d0 + reach
-    ends = np.flatnonzero(nxt != np.arange(1, n + 1))  # last sample of each loop
-    loop = np.searchsorted(ends, j0)
-    start = nxt[ends][loop]
-    size = ends[loop] - start + 1
     off = np.arange(-w - 1, w + 2)
-    win = start[:, None] + (j0 - start)[:, None] + off
-    win = start[:, None] + (win - start[:, None]) % size[:, None]
-    d = norm2(x[:, None, :] - pts[win])  # (points, 2 w + 3): the window and one more each side
+    ends = np.flatnonzero(nxt != np.arange(1, n + 1))  # last sample of each loop
+    if len(ends) == 1:  # one loop: samples 0 .. n - 1
+        size = np.full(len(j0), n)
+        win = j0[:, None] + off
+        if n > 2 * w + 3:  # a window wraps around at most once
+            win[win < 0] += n
+            win[win >= n] -= n
+        else:
+            win %= n
+    else:
+        loop = np.searchsorted(ends, j0)
+        start = nxt[ends][loop]
+        size = ends[loop] - start + 1
+        win = start[:, None] + ((j0 - start)[:, None] + off) % size[:, None]
+    # (points, 2 w + 3): the window and one more each side; by coordinate columns (the
+    # arithmetic of norm2, in fewer passes over strided data)
+    dx, dy = x[:, :1] - pts[:, 0][win], x[:, 1:2] - pts[:, 1][win]
+    d = np.sqrt(dx**2 + dy**2)
     inner = d[:, 1:-1]
     # Every sample within `wide` (slightly enlarged against rounding) must be inner. The
     # samples outside the window lie at least clear[j0] - d0 from x (triangle inequality);
     # where that does not prove it, a ball count of the tree decides.
     wide = lim * (1 + 1e-9) + 1e-300
-    num_inner = (inner <= wide[:, None]).sum(axis=1)
     done = (clear[j0] - d0) * (1 - 1e-9) > wide
     rest = np.flatnonzero(~done & (size > 2 * w + 3))
     if len(rest) and w == max(_WINDOWS):  # the narrow window leaves the rest to the wide one
         count = tree.query_ball_point(x[rest], wide[rest], return_length=True)
-        done[rest] = count == num_inner[rest]
+        done[rest] = count == (inner[rest] <= wide[rest, None]).sum(axis=1)
     done &= size > 2 * w + 3
     close = (inner <= lim[:, None]) & (inner <= d[:, :-2]) & (inner <= d[:, 2:])
     close[:, w] = True  # the nearest sample
@@ -356,6 +368,35 @@ def _best(pidx: Int, dist: Float) -> Int:
     first = np.ones(len(p), dtype=bool)
     first[1:] = p[1:] != p[:-1]
     return order[first]
+
+
+def _hermite_root(g0: Float, g1: Float, dg0: Float, dg1: Float, lo: Float, hi: Float) -> Float:
+    """A start for :func:`_bracketed_newton`: the root in ``[lo, hi]`` of the cubic that
+    interpolates ``g`` and ``g'`` at both ends (``g0 <= 0 <= g1``), by a few Newton steps on
+    the cubic from the secant's root, kept in the bracket.
+
+    Its error is ``O((hi - lo)^4)``, far below the secant's ``O((hi - lo)^2)``: one Newton
+    step on ``g`` then reaches rounding, and the next confirms it (two evaluations of the
+    curve instead of three).
+    """
+    h = hi - lo
+    m0, m1 = dg0 * h, dg1 * h
+    # g(lo + s h) = g0 + m0 s + a s^2 + b s^3 on [0, 1]
+    a = 3.0 * (g1 - g0) - 2.0 * m0 - m1
+    b = 2.0 * (g0 - g1) + m0 + m1
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        s = np.clip(-g0 / (g1 - g0), 0.0, 1.0)
+        for _ in range(_HERMITE_STEPS):
+            f = g0 + s * (m0 + s * (a + s * b))
+            df = m0 + s * (2.0 * a + 3.0 * s * b)
+            s = np.clip(s - f / df, 0.0, 1.0)
+    return lo + s * h
+
+
+_HERMITE_STEPS = 2
+"""Newton steps on the cubic of :func:`_hermite_root` (from the secant's root, whose error
+is ``O(h^2)``: after two steps the start is within ``O(h^4)`` of the root of ``g``, which
+one Newton step on ``g`` then takes to rounding)."""
 
 
 def _bracketed_newton(
@@ -1021,32 +1062,47 @@ class ParametricCurve(Boundary):
         _, p, tree, _, nxt, _ = self._samples
         return _window_clearance(tree, p, nxt)
 
+    @cached_property
+    def _sample_derivatives(self) -> tuple[Float, ...]:
+        """At the samples' parameters ``(n_samples,)`` each: the coordinates of ``c``,
+        ``c'`` and ``c''`` and ``|c'|^2``. With them, ``g`` and ``g'`` at the ends of every
+        bracket of :meth:`_project` (two samples) cost no evaluation of the curve."""
+        t = self._samples[0]
+        c, c1, c2 = (np.asarray(v, dtype=np.float64) for v in self._c012(t))
+        return c[:, 0], c[:, 1], c1[:, 0], c1[:, 1], c2[:, 0], c2[:, 1], (c1 * c1).sum(axis=1)
+
     def _project(self, x: Float) -> tuple[Float, Float]:
         """Parameters ``(n,)`` and points ``(n, 2)`` of the closest points of ``x (n, 2)``."""
         if not len(x):
             return np.empty(0), np.empty((0, 2))
         ts, ps, tree, prev, nxt, h = self._samples
         pi, si = _candidates(x, tree, ps, prev, nxt, 0.75 * h, self._clearance)
-        xs, dt, T = x[pi], self.period / len(ts), self.period
+        xs, n, T = x[pi], len(ts), self.period
 
         def ev(t: Float, xx: Float) -> tuple[Float, Float, Float]:
             c, c1, c2 = self._c012(np.mod(t, T))
             r = c - xx
             return (c1 * r).sum(axis=1), (c2 * r).sum(axis=1) + (c1 * c1).sum(axis=1), c
 
-        lo, hi = ts[si] - dt, ts[si] + dt
-        g2, _, c2 = ev(np.concatenate([lo, hi]), np.concatenate([xs, xs]))  # one evaluation
-        glo, ghi, clo, chi = g2[: len(lo)], g2[len(lo) :], c2[: len(lo)], c2[len(lo) :]
-        t = np.where(norm2(clo - xs) <= norm2(chi - xs), lo, hi)  # no root: an endpoint
+        # The bracket: the neighbouring samples' parameters (continued across the period),
+        # where c and c' are known: g there costs no evaluation of the curve.
+        il, ih = prev[si], nxt[si]
+        lo = ts[il] - np.where(si == 0, T, 0.0)
+        hi = ts[ih] + np.where(si == n - 1, T, 0.0)
+        cx, cy, d1x, d1y, d2x, d2y, d11 = self._sample_derivatives
+        x0, x1 = xs[:, 0], xs[:, 1]
+        ax, ay, bx, by = cx[il] - x0, cy[il] - x1, cx[ih] - x0, cy[ih] - x1  # c - x at the ends
+        glo = d1x[il] * ax + d1y[il] * ay
+        ghi = d1x[ih] * bx + d1y[ih] * by
+        t = np.where(ax * ax + ay * ay <= bx * bx + by * by, lo, hi)  # no root: an endpoint
         br = np.flatnonzero((glo <= 0) & (ghi >= 0))
         if br.size:
-            xb = xs[br]
-            with np.errstate(divide="ignore", invalid="ignore"):  # secant start
-                t0 = lo[br] - glo[br] * (2 * dt) / (ghi[br] - glo[br])
+            xb, lb, hb, b0, b1 = xs[br], lo[br], hi[br], il[br], ih[br]
+            dga = d2x[b0] * ax[br] + d2y[b0] * ay[br] + d11[b0]  # g' at the ends
+            dgb = d2x[b1] * bx[br] + d2y[b1] * by[br] + d11[b1]
+            t0 = _hermite_root(glo[br], ghi[br], dga, dgb, lb, hb)
             t0 = np.where(np.isfinite(t0), t0, ts[si][br])
-            t[br] = _bracketed_newton(
-                lambda tt, i: ev(tt, xb[i])[:2], t0, lo[br], hi[br], 8 * _EPS * T
-            )
+            t[br] = _bracketed_newton(lambda tt, i: ev(tt, xb[i])[:2], t0, lb, hb, 8 * _EPS * T)
         t = np.mod(t, T)
         y = self.point(t)
         best = _best(pi, norm2(y - xs))
