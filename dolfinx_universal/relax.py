@@ -473,7 +473,7 @@ def relax_vertices(
     slid = verts[compass.gamma]
     slid = slid[np.any(y[slid] != y0[slid], axis=1)]
     xp[slid] = y[slid] + phi[slid, None] * compass.nrm[slid]
-    moved = np.any(y != x0, axis=1)
+    moved = (y[:, 0] != x0[:, 0]) | (y[:, 1] != x0[:, 1])
     return Relaxation(y, xp, moved, num_moves, done)
 
 
@@ -505,9 +505,10 @@ class _Stars:
         eo = np.sign(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
         self.ea, self.eb = np.where(eo < 0, eb, ea), np.where(eo < 0, ea, eb)
         self.ev, self.verts = ev, verts
+        self.pv = verts[ev]  # each entry's vertex (process-local)
         self.flat = eo == 0
         self.any_flat = bool(self.flat.any())
-        pv = verts[ev]
+        pv = self.pv
         self.caps = []  # per opposite corner: the cap of each entry's edge p-corner, inf if none
         for corner_of in (self.ea, self.eb):
             cap = np.full(len(ev), np.inf)
@@ -517,8 +518,13 @@ class _Stars:
             hmax_e = np.maximum(h[pv[both]], h[corner_of[both]])
             cap[both] = np.maximum(GAMMA_EDGE_MAX * hmax_e, length) * (1.0 + TIE)
             if len(both):
-                self.caps.append((corner_of, cap, cap < np.inf))
-        self.vstart = np.flatnonzero(np.diff(ev, prepend=-1))  # each vertex's segment
+                self.caps.append((corner_of, cap))
+        # Entries with a capped edge (either corner): rate() checks those only.
+        self.capped = np.zeros(len(ev), dtype=bool)
+        for _, cap in self.caps:
+            self.capped |= cap < np.inf
+        self.first = np.diff(ev, prepend=-1) != 0  # the first entry of each vertex's segment
+        self.vstart = np.flatnonzero(self.first)
         self.qe = np.empty(len(ev))  # quality of each entry at the current positions
 
     def rate(self, E: Int, p: Float) -> Float:
@@ -533,12 +539,12 @@ class _Stars:
         )
         if self.any_flat:
             q[self.flat[E]] = -1.0
-        for corner_of, cap, capped in self.caps:
-            i = np.flatnonzero(capped[E])
-            if len(i):
-                c = y[corner_of[E[i]]]
-                d = _length(p[i] - c[col])
-                q[i] = np.where(d > cap[E[i]][col], -1.0, q[i])
+        i = np.flatnonzero(self.capped[E]) if self.caps else ()
+        if len(i):
+            Ei, pi = E[i], p[i]
+            for corner_of, cap in self.caps:  # cap = inf where that corner caps nothing
+                d = _length(pi - y[corner_of[Ei]][col])
+                q[i] = np.where(d > cap[Ei][col], -1.0, q[i])
         return q
 
     def background_minima(self, x0: Float, m: int) -> Float:
@@ -558,9 +564,9 @@ class _Stars:
         ev = self.ev
         if not len(ev):
             return np.full(m, np.inf)
-        touched = changed[self.verts[ev]] | changed[self.ea] | changed[self.eb]
+        touched = changed[self.pv] | changed[self.ea] | changed[self.eb]
         D = np.flatnonzero(touched)
-        self.qe[D] = self.rate(D, self.y[self.verts[ev[D]]])
+        self.qe[D] = self.rate(D, self.y[self.pv[D]])
         return self._vertex_minima(self.qe, m)
 
     def _vertex_minima(self, q: Float, m: int) -> Float:
@@ -654,7 +660,7 @@ class _Compass:
         best candidate if that beats staying (collective); return those that moved."""
         sub, verts, row, cand = self.sub, self.sub.vertices, self.row, self.cand
         ev = stars.ev
-        starts = np.flatnonzero(np.diff(ev[E], prepend=-1))
+        starts = np.flatnonzero(stars.first[E])  # E holds whole segments
         q = stars.rate(E, cand[row[ev[E]]])
         qmin = np.minimum.reduceat(q, starts, axis=0) if len(starts) else q[:0]
         if sub.map is None:
