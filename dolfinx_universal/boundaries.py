@@ -370,14 +370,17 @@ def _best(pidx: Int, dist: Float) -> Int:
     return order[first]
 
 
-def _hermite_root(g0: Float, g1: Float, dg0: Float, dg1: Float, lo: Float, hi: Float) -> Float:
+def _hermite_root(
+    g0: Float, g1: Float, dg0: Float, dg1: Float, lo: Float, hi: Float
+) -> tuple[Float, Float]:
     """A start for :func:`_bracketed_newton`: the root in ``[lo, hi]`` of the cubic that
     interpolates ``g`` and ``g'`` at both ends (``g0 <= 0 <= g1``), by a few Newton steps on
-    the cubic from the secant's root, kept in the bracket.
+    the cubic from the secant's root, kept in the bracket; and :data:`_CURVATURE_SAFETY`
+    times the cubic's largest ``|g''|`` over the bracket.
 
     Its error is ``O((hi - lo)^4)``, far below the secant's ``O((hi - lo)^2)``: one Newton
-    step on ``g`` then reaches rounding, and the next confirms it (two evaluations of the
-    curve instead of three).
+    step on ``g`` then reaches rounding, which the bound of ``|g''|`` tells without another
+    evaluation (one evaluation of the curve instead of three).
     """
     h = hi - lo
     m0, m1 = dg0 * h, dg1 * h
@@ -390,7 +393,20 @@ def _hermite_root(g0: Float, g1: Float, dg0: Float, dg1: Float, lo: Float, hi: F
             f = g0 + s * (m0 + s * (a + s * b))
             df = m0 + s * (2.0 * a + 3.0 * s * b)
             s = np.clip(s - f / df, 0.0, 1.0)
-    return lo + s * h
+        # g'' = (2 a + 6 b s) / h^2 is linear in s: its extremes are at the ends.
+        curvature = _CURVATURE_SAFETY * np.maximum(np.abs(2.0 * a), np.abs(2.0 * a + 6.0 * b))
+        curvature /= h * h
+    return lo + s * h, curvature
+
+
+_HERMITE_STEPS = 2
+"""Newton steps on the cubic of :func:`_hermite_root` (from the secant's root, whose error
+is ``O(h^2)``: after two steps the start is within ``O(h^4)`` of the root of ``g``, which
+one Newton step on ``g`` then takes to rounding)."""
+_CURVATURE_SAFETY = 4.0
+"""Factor on the cubic's ``|g''|`` in the bound :func:`_bracketed_newton` stops on: the
+cubic's ``g''`` differs from that of ``g`` by ``O(h^2)`` relative (``h`` the bracket, one
+sample spacing on each side)."""
 
 
 _HERMITE_STEPS = 2
@@ -406,12 +422,17 @@ def _bracketed_newton(
     hi: Float,
     tol: float,
     maxiter: int = 100,
+    curvature: Float | None = None,
 ) -> Float:
     """Vectorised safeguarded Newton method for roots of ``g`` with ``g(lo) <= 0 <= g(hi)``.
 
     ``fn(t, idx)`` returns ``g`` and ``g'`` at ``t`` for the problems ``idx``. A step that
     leaves the bracket or does not halve the previous one is replaced by a bisection
-    (``rtsafe``), so every problem converges; converged problems drop out.
+    (``rtsafe``), so every problem converges; converged problems drop out: after a step
+    below ``tol``, or, given a bound ``curvature`` of ``|g''|`` over the bracket, after a
+    Newton step ``d`` whose successor, at most ``curvature d^2 / (2 g')`` (quadratic
+    convergence), is below ``tol / 4``: that step is not taken (saving the evaluation that
+    would only confirm convergence).
     """
     t, lo, hi = t.copy(), lo.copy(), hi.copy()
     dxold = hi - lo
@@ -428,9 +449,14 @@ def _bracketed_newton(
             tn = ta - g / dg
             ok = (dg > 0) & (tn >= la) & (tn <= ha) & (np.abs(2 * g) <= np.abs(dxold[act] * dg))
         tn = np.where(g == 0, ta, np.where(ok, tn, 0.5 * (la + ha)))
-        dxold[act] = np.abs(tn - ta)
+        step = np.abs(tn - ta)
+        dxold[act] = step
         t[act] = tn
-        act = act[(np.abs(tn - ta) > tol) & (ha - la > tol)]
+        going = (step > tol) & (ha - la > tol)
+        if curvature is not None:
+            with np.errstate(invalid="ignore", over="ignore"):
+                going &= ~(ok & (0.5 * curvature[act] * step * step <= 0.25 * tol * dg))
+        act = act[going]
     return t
 
 
@@ -1100,9 +1126,11 @@ class ParametricCurve(Boundary):
             xb, lb, hb, b0, b1 = xs[br], lo[br], hi[br], il[br], ih[br]
             dga = d2x[b0] * ax[br] + d2y[b0] * ay[br] + d11[b0]  # g' at the ends
             dgb = d2x[b1] * bx[br] + d2y[b1] * by[br] + d11[b1]
-            t0 = _hermite_root(glo[br], ghi[br], dga, dgb, lb, hb)
+            t0, bound = _hermite_root(glo[br], ghi[br], dga, dgb, lb, hb)
             t0 = np.where(np.isfinite(t0), t0, ts[si][br])
-            t[br] = _bracketed_newton(lambda tt, i: ev(tt, xb[i])[:2], t0, lb, hb, 8 * _EPS * T)
+            t[br] = _bracketed_newton(
+                lambda tt, i: ev(tt, xb[i])[:2], t0, lb, hb, 8 * _EPS * T, curvature=bound
+            )
         t = np.mod(t, T)
         y = self.point(t)
         best = _best(pi, norm2(y - xs))
