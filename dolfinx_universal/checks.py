@@ -716,16 +716,34 @@ TOPOLOGY_MESSAGES = {
 
 
 def _loops(gids: npt.NDArray[np.int64]) -> tuple[int, npt.NDArray[np.int64]]:
-    """Connected components of the graph of edges ``gids (m, 2)``: ``(count, label per edge)``."""
+    """Connected components of the graph of edges ``gids (m, 2)``: ``(count, label per edge)``,
+    labelled in the order of their smallest node (as scipy's ``connected_components``).
+
+    Where every node has one edge leaving and one entering (Gamma_h once every vertex on it
+    has two positive edges, each edge oriented with its kept cell on the left), the
+    components are cycles of the successor map, labelled by pointer doubling in ``log2`` of
+    the longest cycle's length; otherwise by scipy's graph search.
+    """
+    nodes, inv = np.unique(gids, return_inverse=True)
+    inv = inv.reshape(-1, 2)
+    n, m = len(nodes), len(inv)
+    tail, head = inv[:, 0], inv[:, 1]
+    out_edge = np.full(n, -1, dtype=np.int64)
+    out_edge[tail] = np.arange(m)
+    if m == n and np.array_equal(np.sort(tail), np.arange(n)) and (out_edge[head] >= 0).all():
+        succ = out_edge[head]  # a permutation of the edges: a union of cycles
+        low = np.minimum(tail, head)  # smallest node of each cycle, by doubling
+        for _ in range(max(1, int(np.ceil(np.log2(max(m, 2)))))):
+            low = np.minimum(low, low[succ])
+            succ = succ[succ]
+        roots, label = np.unique(low, return_inverse=True)
+        return len(roots), label.astype(np.int64)
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    nodes, inv = np.unique(gids, return_inverse=True)
-    inv = inv.reshape(-1, 2)
-    n = len(nodes)
-    graph = coo_matrix((np.ones(len(inv)), (inv[:, 0], inv[:, 1])), shape=(n, n))
+    graph = coo_matrix((np.ones(m), (tail, head)), shape=(n, n))
     count, label = connected_components(graph, directed=False)
-    return int(count), label[inv[:, 0]]
+    return int(count), label[tail]
 
 
 def gamma_h_topology(
@@ -796,14 +814,17 @@ def _topology(data: list, samples: CurveSamples, far_kept: bool) -> tuple[list[P
         )
     from scipy.spatial import cKDTree
 
-    nloops, loop = _loops(g)
     # Orient each edge with its kept cell on the left.
     d, e = b - a, c - a
     left = d[:, 0] * e[:, 1] - d[:, 1] * e[:, 0] > 0
     a, b = np.where(left[:, None], a, b), np.where(left[:, None], b, a)
+    nloops, loop = _loops(np.where(left[:, None], g, g[:, ::-1]))
     area = np.bincount(loop, a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0], minlength=nloops) / 2
     mid = 0.5 * (a + b)
-    curve = samples.labels[cKDTree(samples.points).query(mid)[1]]
+    if ncurves == 1:
+        curve = np.zeros(len(mid), dtype=np.intp)
+    else:
+        curve = samples.labels[cKDTree(samples.points).query(mid)[1]]
     # The curve of each loop: the most frequent label among its edges.
     counts = np.zeros((nloops, ncurves), dtype=np.int64)
     np.add.at(counts, (loop, curve), 1)
