@@ -59,6 +59,28 @@ class StepReport:
     min_jacobian_ratio: float
 
 
+def _far_extreme(
+    values: npt.NDArray[np.float64],
+    order: npt.NDArray[np.intp],
+    mask: npt.NDArray[np.bool_],
+    lowest: bool,
+) -> float | None:
+    """``values[mask].min()`` (``lowest``) or ``.max()``, None for an empty mask, from the
+    ascending ``order`` of ``values``: the first masked cell in that order (or the
+    reverse). The cells left out (near Gamma, outside the domain) are few, so a short head
+    of the order holds one: the same value as the full reduction, without it."""
+    idx = order if lowest else order[::-1]
+    for head in (idx[:_HEAD], idx):
+        hit = mask[head]
+        if hit.any():
+            return float(values[head[np.argmax(hit)]])
+    return None
+
+
+_HEAD = 4096
+"""Cells of the sorted order :func:`_far_extreme` tries before the whole order."""
+
+
 class MovingDomain:
     """A background mesh re-conformed in place to a moving domain at every step.
 
@@ -516,21 +538,20 @@ class MovingDomain:
         n_far = red(int(np.count_nonzero(far)))
         if n_far:
 
-            def ext(values, op, empty):
-                return red(
-                    float(op(values[far])) if far.any() else empty,
-                    op=MPI.MIN if op is np.min else MPI.MAX,
-                )
+            def ext(key, op, empty):
+                lowest = op is np.min
+                value = _far_extreme(b[key], self._background_order[key], far, lowest)
+                return red(empty if value is None else value, op=MPI.MIN if lowest else MPI.MAX)
 
-            rep["theta_min_deg"] = min(rep["theta_min_deg"], ext(b["theta_min"], np.min, 180.0))
-            rep["theta_max_deg"] = max(rep["theta_max_deg"], ext(b["theta_max"], np.max, 0.0))
+            rep["theta_min_deg"] = min(rep["theta_min_deg"], ext("theta_min", np.min, 180.0))
+            rep["theta_max_deg"] = max(rep["theta_max_deg"], ext("theta_max", np.max, 0.0))
             if self.tdim == 2:
-                rep["q_max"] = max(rep["q_max"], ext(b["q"], np.max, 0.0))
-                rep["Q3_max"] = max(rep["Q3_max"], ext(b["Q"], np.max, 0.0))
+                rep["q_max"] = max(rep["q_max"], ext("q", np.max, 0.0))
+                rep["Q3_max"] = max(rep["Q3_max"], ext("Q", np.max, 0.0))
                 rep["min_area_ratio"] = min(rep["min_area_ratio"], 1.0)
             else:
-                rep["radius_ratio_min"] = min(rep["radius_ratio_min"], ext(b["rr"], np.min, 1.0))
-                rep["mean_ratio_min"] = min(rep["mean_ratio_min"], ext(b["mr"], np.min, 1.0))
+                rep["radius_ratio_min"] = min(rep["radius_ratio_min"], ext("rr", np.min, 1.0))
+                rep["mean_ratio_min"] = min(rep["mean_ratio_min"], ext("mr", np.min, 1.0))
                 rep["min_volume_ratio"] = min(rep["min_volume_ratio"], 1.0)
                 hist = b["hist"][far].sum(axis=0).astype(np.int64)
                 self.comm.Allreduce(MPI.IN_PLACE, hist, op=MPI.SUM)
@@ -565,6 +586,12 @@ class MovingDomain:
             "mr": np.abs(tet.mean_ratio(x, cells)),
             "hist": hist,
         }
+
+    @cached_property
+    def _background_order(self) -> dict[str, npt.NDArray[np.intp]]:
+        """The owned background cells sorted by each per-cell quality (ascending)."""
+        b = self._background_quality
+        return {k: np.argsort(v, kind="stable") for k, v in b.items() if v.ndim == 1}
 
     # -- what forms and boundary conditions need --------------------------------------------
 
