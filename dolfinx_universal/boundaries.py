@@ -1184,6 +1184,10 @@ class ParametricCurve(Boundary):
         return self._outward(self._project(as_points(y))[0])
 
     def bounding_box(self) -> Float:
+        return self._bbox.copy()
+
+    @cached_property
+    def _bbox(self) -> Float:
         p, h = self._samples[1], self._samples[5]
         return np.array([p.min(axis=0) - h, p.max(axis=0) + h])
 
@@ -1200,14 +1204,18 @@ class ParametricCurve(Boundary):
     def _loops_normals(self, spacing: float) -> tuple[list[Float], list[Float]]:
         if not _native(self, ParametricCurve, "sample", "_loops", "normal"):
             return Boundary._loops_normals(self, spacing)
-        n = 1024  # as Boundary._loops; the normals from the parameters, not by projection
-        while True:
-            t = self._sample_parameters(n)
-            p = self.point(t)
-            longest = float(_chords(p).max())
-            if longest <= spacing:
-                return [p], [self._outward(t)]
-            n = int(np.ceil(n * longest / spacing * 1.1))
+        cached = self.__dict__.get("_last_loops")  # a moving body asks for the same spacing
+        if cached is None or cached[0] != spacing:
+            n = 1024  # as Boundary._loops; the normals from the parameters, not by projection
+            while True:
+                t = self._sample_parameters(n)
+                p = self.point(t)
+                longest = float(_chords(p).max())
+                if longest <= spacing:
+                    break
+                n = int(np.ceil(n * longest / spacing * 1.1))
+            cached = self.__dict__["_last_loops"] = (spacing, p, self._outward(t))
+        return [cached[1].copy()], [cached[2].copy()]
 
     def min_radius_of_curvature(self) -> float:
         t = np.arange(4 * self.n_samples, dtype=np.float64) * (self.period / (4 * self.n_samples))
