@@ -209,6 +209,7 @@ def _candidates(
     nxt: Int,
     reach: float,
     clear: tuple[Float, ...],
+    start: Int | None = None,
 ) -> tuple[Int, Int]:
     """Start samples for the exact projection of every point of ``x``.
 
@@ -226,14 +227,37 @@ def _candidates(
     a ball count of the k-d tree, proves that no other sample is that close (else the point
     goes on). The k nearest samples (k = 16, then 64) settle most other points; the rest
     (far from Gamma) are searched exhaustively. The candidates do not depend on the route.
+
+    ``start`` (optional, -1 where unknown): a sample near each point's nearest one. The
+    windows are first searched around it, with no query of the tree; the points for which
+    they do not prove to hold the nearest sample go the way above.
     """
     ps: list[Int] = []
     ss: list[Int] = []
     m = len(pts)
     todo = np.arange(len(x))
     if len(x):
-        d0, j0 = tree.query(x)
         left = np.ones(len(x), dtype=bool)
+        if start is not None:
+            started = np.flatnonzero(start >= 0)
+            js = start[started]
+            ds = np.sqrt((x[started, 0] - pts[js, 0]) ** 2 + (x[started, 1] - pts[js, 1]) ** 2)
+            for w, cw in zip(_WINDOWS, clear):
+                sub = started[left[started]]
+                if w != max(_WINDOWS):  # the points its clearance may settle (ds >= d_min)
+                    sub = started[(cw[js] - ds) * (1 - 1e-9) > (ds + reach) * (1 + 1e-9)]
+                if not len(sub):
+                    continue
+                done, pi, si = _window_candidates(
+                    x[sub], None, start[sub], tree, pts, nxt, reach, cw, w
+                )
+                ps.append(sub[pi])
+                ss.append(si)
+                left[sub[done]] = False
+        d0, j0 = np.zeros(len(x)), np.zeros(len(x), dtype=np.intp)
+        rest = np.flatnonzero(left)
+        if len(rest):
+            d0[rest], j0[rest] = tree.query(x[rest])
         for w, cw in zip(_WINDOWS, clear):  # a narrow window first, then the wide one
             sub = np.flatnonzero(left)
             if w != max(_WINDOWS):  # only the points its clearance settles
@@ -279,6 +303,78 @@ narrow window settles the points near Gamma (within a few sample spacings), the 
 most others."""
 
 
+class _SampleHints:
+    """Starts for the window search of :func:`_candidates` on one closed loop of samples.
+
+    Square cells of side :data:`_HINT_CELL` sample spacings, those within
+    :data:`_HINT_BAND` cells of the loop, hashed sparsely (sorted keys), each with the
+    sample nearest its centre (one query of the k-d tree when built). A point's start is
+    its cell's sample, moved along the loop by the point's offset along the chord there
+    (:data:`_HINT_WALK` times): near its nearest sample, which the windows then prove.
+
+    Parameters
+    ----------
+    pts
+        The loop's samples in order ``(n, 2)``.
+    tree
+        A k-d tree of ``pts``.
+    spacing
+        The longest chord between consecutive samples.
+    """
+
+    def __init__(self, pts: Float, tree: cKDTree, spacing: float) -> None:
+        self.c = c = _HINT_CELL * max(spacing, 1e-300)
+        ij = np.floor(pts[:: max(1, _HINT_CELL // 2)] / c).astype(np.int64)  # two per cell
+        r = np.arange(-_HINT_BAND, _HINT_BAND + 1)
+        off = np.stack(np.meshgrid(r, r, indexing="ij"), -1).reshape(-1, 2)
+        self.keys = np.unique(self._key(ij[:, None, :] + off[None]))
+        i, j = np.divmod(self.keys, _KEY_BASE)
+        centres = (np.column_stack([i, j]) - _KEY_OFFSET + 0.5) * c
+        self.near = np.asarray(tree.query(centres)[1], dtype=np.intp)
+        # Per sample: its coordinates, the chord of its neighbours and 2 / its length^2.
+        n = len(pts)
+        self.px, self.py = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
+        nxt, prev = np.roll(np.arange(n), -1), np.roll(np.arange(n), 1)
+        self.tx, self.ty = self.px[nxt] - self.px[prev], self.py[nxt] - self.py[prev]
+        with np.errstate(divide="ignore"):
+            self.scale = np.where(
+                (self.tx != 0) | (self.ty != 0), 2.0 / (self.tx**2 + self.ty**2), 0.0
+            )
+
+    @staticmethod
+    def _key(ij: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+        ij = np.clip(ij, -_KEY_OFFSET, _KEY_OFFSET - 1) + _KEY_OFFSET
+        return ij[..., 0] * _KEY_BASE + ij[..., 1]
+
+    def starts(self, x: Float) -> Int:
+        """A start sample for each point of ``x (m, 2)``, -1 outside the cells."""
+        ok = np.isfinite(x).all(axis=1)
+        u = np.where(ok[:, None], x / self.c, 0.0)
+        key = self._key(np.floor(np.clip(u, -(2.0**62), 2.0**62)).astype(np.int64))
+        pos = np.minimum(np.searchsorted(self.keys, key), len(self.keys) - 1)
+        hit = ok & (self.keys[pos] == key)
+        start = np.full(len(x), -1, dtype=np.intp)
+        k = np.flatnonzero(hit)
+        j, x0, x1, n = self.near[pos[k]], x[k, 0], x[k, 1], len(self.px)
+        for _ in range(_HINT_WALK):  # the offset along the chord, in samples
+            off = ((x0 - self.px[j]) * self.tx[j] + (x1 - self.py[j]) * self.ty[j]) * self.scale[j]
+            j = (j + np.clip(np.rint(off), -_HINT_CELL, _HINT_CELL).astype(np.intp)) % n
+        start[k] = j
+        return start
+
+
+_HINT_CELL = 8
+"""Side of the cells of :class:`_SampleHints`, in sample spacings."""
+_HINT_BAND = 6
+"""Cells of :class:`_SampleHints` around each cell of the loop: points up to about 48
+sample spacings from Gamma get a start (the band of a mesh reaches a few ``h``)."""
+_HINT_WALK = 2
+"""Steps along the chord from a cell's sample: the start is then within a sample or two of
+the nearest one (measured on the propeller and three-blade bodies)."""
+_KEY_OFFSET = 2**30
+_KEY_BASE = 2**31
+
+
 def _window_clearance(tree: cKDTree, pts: Float, nxt: Int) -> tuple[Float, ...]:
     """For each window of :data:`_WINDOWS` and each sample, a lower bound of the sample's
     distance to the samples outside its window (the ``w`` samples on each side along its
@@ -307,7 +403,7 @@ def _window_clearance(tree: cKDTree, pts: Float, nxt: Int) -> tuple[Float, ...]:
 
 def _window_candidates(
     x: Float,
-    d0: Float,
+    d0: Float | None,
     j0: Int,
     tree: cKDTree,
     pts: Float,
@@ -319,10 +415,14 @@ def _window_candidates(
     """The candidates of :func:`_candidates` for the points whose samples within reach all
     lie within ``w`` samples of the nearest one ``j0`` (at ``d0``) along its loop.
 
+    With ``d0`` None, ``j0`` is only a start near the nearest sample: the window around it is
+    searched for the nearest one, and a point is settled when the clearance proves that no
+    sample outside the window is within reach of that nearest one (then it is in the window,
+    and the candidates are those of the nearest sample's window).
+
     Returns the mask of the points settled, and their pairs ``(point, sample)``.
     """
     n = len(pts)
-    lim = d0 + reach
     off = np.arange(-w - 1, w + 2)
     ends = np.flatnonzero(nxt != np.arange(1, n + 1))  # last sample of each loop
     if len(ends) == 1:  # one loop: samples 0 .. n - 1
@@ -343,18 +443,25 @@ def _window_candidates(
     dx, dy = x[:, :1] - pts[:, 0][win], x[:, 1:2] - pts[:, 1][win]
     d = np.sqrt(dx**2 + dy**2)
     inner = d[:, 1:-1]
+    nearest = np.full(len(x), w)  # the nearest sample's column in the window
+    if d0 is None:  # from a start: the window's nearest, and the start's distance
+        nearest = inner.argmin(axis=1)
+        d0, dj = inner[np.arange(len(x)), nearest], inner[:, w]
+    else:
+        dj = d0
+    lim = d0 + reach
     # Every sample within `wide` (slightly enlarged against rounding) must be inner. The
     # samples outside the window lie at least clear[j0] - d0 from x (triangle inequality);
     # where that does not prove it, a ball count of the tree decides.
     wide = lim * (1 + 1e-9) + 1e-300
-    done = (clear[j0] - d0) * (1 - 1e-9) > wide
+    done = (clear[j0] - dj) * (1 - 1e-9) > wide
     rest = np.flatnonzero(~done & (size > 2 * w + 3))
     if len(rest) and w == max(_WINDOWS):  # the narrow window leaves the rest to the wide one
         count = tree.query_ball_point(x[rest], wide[rest], return_length=True)
         done[rest] = count == (inner[rest] <= wide[rest, None]).sum(axis=1)
     done &= size > 2 * w + 3
     close = (inner <= lim[:, None]) & (inner <= d[:, :-2]) & (inner <= d[:, 2:])
-    close[:, w] = True  # the nearest sample
+    close[np.arange(len(x)), nearest] = True  # the nearest sample
     r, c = np.nonzero(close & done[:, None])
     return done, r, win[r, c + 1]
 
@@ -500,7 +607,8 @@ class _Grid:
     def _cells(self, x: Float) -> tuple[Bool, Int]:
         """Mask of the points in the grid, and their flat cell indices (0 outside)."""
         u = (x - self.origin) * (1.0 / self.h)
-        inside = (u >= 0).all(axis=1) & (u[:, 0] < self.shape[0]) & (u[:, 1] < self.shape[1])
+        u0, u1 = u[:, 0], u[:, 1]  # by columns: an all() along a short axis is slow
+        inside = (u0 >= 0) & (u1 >= 0) & (u0 < self.shape[0]) & (u1 < self.shape[1])
         with np.errstate(invalid="ignore"):
             k = u[:, 0].astype(np.intp) * self.shape[1] + u[:, 1].astype(np.intp)
         return inside, np.where(inside, k, 0)
@@ -510,9 +618,10 @@ class _Grid:
         inside, k = self._cells(x)
         return np.where(inside, self.code.ravel()[k], 1).astype(np.float64)
 
-    def lower_bound(self, x: Float) -> Float:
-        """Lower bound of the distance to Gamma, shape ``(n,)``."""
-        inside, k = self._cells(x)
+    def lower_bound(self, x: Float, cells: tuple[Bool, Int] | None = None) -> Float:
+        """Lower bound of the distance to Gamma, shape ``(n,)`` (``cells``: :meth:`_cells` of
+        ``x``, if known)."""
+        inside, k = self._cells(x) if cells is None else cells
         out = self.lb.ravel()[k].astype(np.float64)
         xo = x[~inside]
         out[~inside] = norm2(np.maximum(np.maximum(self.box[0] - xo, xo - self.box[1]), 0.0))
@@ -666,15 +775,20 @@ class Boundary(abc.ABC):
         """
         x = as_points(x)
         d = _distances(distance, len(x))
-        lb = self._lower_bound(x)
+        on_grid = type(self)._lower_bound is Boundary._lower_bound
+        if on_grid:  # the grid's bound, its cells kept for the test below
+            cells = self._grid._cells(x)
+            lb = self._grid.lower_bound(x, cells)
+        else:
+            lb = self._lower_bound(x)
         mask = lb <= d
         if mask.any():
             g = self._grid
             test = mask.copy()
-            if type(self)._lower_bound is Boundary._lower_bound:
+            if on_grid:
                 # In the grid the bound is within 3 sqrt(2) cells of the distance (see
                 # _Grid): a point whose bound is that much below ``distance`` is near.
-                sure = g._cells(x)[0] & (lb * (1 + 1e-5) + 3 * np.sqrt(2.0) * g.h <= d)
+                sure = cells[0] & (lb * (1 + 1e-5) + 3 * np.sqrt(2.0) * g.h <= d)
                 test &= ~sure
             if test.any():
                 reach = (d[test] + g.spacing) * (1 + 1e-12)
@@ -1089,6 +1203,11 @@ class ParametricCurve(Boundary):
         return _window_clearance(tree, p, nxt)
 
     @cached_property
+    def _hints(self) -> _SampleHints:
+        _, p, tree, _, _, h = self._samples
+        return _SampleHints(p, tree, h)
+
+    @cached_property
     def _sample_derivatives(self) -> tuple[Float, ...]:
         """At the samples' parameters ``(n_samples,)`` each: the coordinates of ``c``,
         ``c'`` and ``c''`` and ``|c'|^2``. With them, ``g`` and ``g'`` at the ends of every
@@ -1102,7 +1221,8 @@ class ParametricCurve(Boundary):
         if not len(x):
             return np.empty(0), np.empty((0, 2))
         ts, ps, tree, prev, nxt, h = self._samples
-        pi, si = _candidates(x, tree, ps, prev, nxt, 0.75 * h, self._clearance)
+        start = self._hints.starts(x)
+        pi, si = _candidates(x, tree, ps, prev, nxt, 0.75 * h, self._clearance, start)
         xs, n, T = x[pi], len(ts), self.period
 
         def ev(t: Float, xx: Float) -> tuple[Float, Float, Float]:

@@ -498,11 +498,17 @@ class _Stars:
         ev = csub[cell_idx, corner]
         order = np.lexsort((ev, colour[ev]))
         cell_idx, corner, ev = cell_idx[order], corner[order], ev[order]
-        c = cells[cell_idx]
         ea = cells[cell_idx, (corner + 1) % 3]
         eb = cells[cell_idx, (corner + 2) % 3]
-        d1, d2 = y[c[:, 1]] - y[c[:, 0]], y[c[:, 2]] - y[c[:, 0]]
-        eo = np.sign(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+        # The orientation of each cell with a movable vertex, once per cell.
+        with_entries = np.unique(cell_idx)
+        c = cells[with_entries]
+        y0, y1 = y[:, 0], y[:, 1]
+        d1x, d1y = y0[c[:, 1]] - y0[c[:, 0]], y1[c[:, 1]] - y1[c[:, 0]]
+        d2x, d2y = y0[c[:, 2]] - y0[c[:, 0]], y1[c[:, 2]] - y1[c[:, 0]]
+        orient = np.zeros(len(cells))
+        orient[with_entries] = np.sign(d1x * d2y - d1y * d2x)
+        eo = orient[cell_idx]
         self.ea, self.eb = np.where(eo < 0, eb, ea), np.where(eo < 0, ea, eb)
         self.ev, self.verts = ev, verts
         self.pv = verts[ev]  # each entry's vertex (process-local)

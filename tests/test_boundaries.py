@@ -522,3 +522,39 @@ def test_window_clearance_is_a_lower_bound(name):
             exact[rows] = np.where(inside, np.inf, d).min(axis=1)
         assert np.all(clear <= exact), w
         assert np.mean(clear == exact) > 0.9, w
+
+
+@pytest.mark.parametrize("name", ["polar", "spline", "neck"])
+def test_projection_starts_change_nothing(name):
+    """The closest points found from the sample hints' starts (no k-d tree query where the
+    windows prove the nearest sample) are bitwise those of the tree's route, at distances
+    from on Gamma to far outside the hints' cells; the starts lie within a few samples of
+    the nearest one where they exist, and there are none far away."""
+    if name == "neck":  # comes back within a few sample spacings of itself
+        t = np.linspace(0.0, 2.0 * np.pi, 400, endpoint=False)
+        r = 0.002 + np.abs(np.cos(t)) ** 3
+        b = PeriodicSpline(np.column_stack([r * np.cos(t), 0.5 * r * np.sin(t)]))
+    else:
+        b = make_case(name)[0]
+    rng = np.random.default_rng(3)
+    on = b.sample(2000)
+    _, pts, tree, _, _, spacing = b._samples
+    hints = b._hints
+    for scale in (0.0, 1e-9, 1e-4, 3 * spacing, 20 * spacing, 0.3, 3.0):
+        x = on + scale * rng.standard_normal(on.shape)
+        start = hints.starts(x)
+        t1, y1 = b._project(x)
+        hints.starts = lambda x: np.full(len(x), -1, dtype=np.intp)  # the tree's route
+        try:
+            t2, y2 = b._project(x)
+        finally:
+            del hints.starts
+        np.testing.assert_array_equal(y1, y2)
+        np.testing.assert_array_equal(t1, t2)
+        have = start >= 0
+        j0 = tree.query(x[have])[1]
+        n = len(pts)
+        assert (np.abs((start[have] - j0 + n // 2) % n - n // 2) <= 4).mean() > 0.99
+        if scale >= 3.0:  # far outside the band of cells
+            assert have.mean() < 0.1
+    assert (hints.starts(np.array([[np.nan, 0.0], [1e300, 1e300]])) == -1).all()

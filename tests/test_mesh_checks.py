@@ -317,3 +317,34 @@ def test_checks_agree_in_parallel():
         # ~1e-15 relative); abs: a floor for values near 0
         for k in ("area", "boundary_defect", "boundary_length", "min_detJ_ratio", "min_angle_deg"):
             assert g[k] == pytest.approx(r[k], rel=1e-9, abs=1e-13), (case, k)
+
+
+def test_gamma_h_loops_match_a_graph_search():
+    """The loops of Gamma_h labelled by pointer doubling on oriented edges are the
+    components of scipy's graph search, labels and order included; edges that are not
+    oriented tail to head (a node with two edges out) take scipy's route."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from dolfinx_universal.checks import _loops
+
+    rng = np.random.default_rng(0)
+    for trial in range(60):
+        sizes = rng.integers(3, 80, size=rng.integers(1, 6))
+        ids = rng.permutation(100000)[: sizes.sum()]
+        edges, o = [], 0
+        for k in sizes:
+            cycle = ids[o : o + k]
+            o += k
+            edges += [(cycle[i], cycle[(i + 1) % k]) for i in range(k)]
+        g = np.array(edges, dtype=np.int64)[rng.permutation(len(edges))]
+        if trial % 3 == 0:  # some edges reversed
+            flip = rng.random(len(g)) < 0.3
+            g[flip] = g[flip][:, ::-1]
+        nodes, inv = np.unique(g, return_inverse=True)
+        inv = inv.reshape(-1, 2)
+        graph = coo_matrix((np.ones(len(inv)), (inv[:, 0], inv[:, 1])), (len(nodes),) * 2)
+        count, label = connected_components(graph, directed=False)
+        got = _loops(g)
+        assert got[0] == count == len(sizes)
+        np.testing.assert_array_equal(got[1], label[inv[:, 0]])
