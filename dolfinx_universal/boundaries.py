@@ -1137,9 +1137,11 @@ class ParametricCurve(Boundary):
 
     Closest points: the curve is sampled at ``n_samples`` equal parameter steps ``dt``; every
     point gets the candidate samples of :func:`_candidates` (the discrete local minima of the
-    sample distances near the smallest one: usually just the nearest sample) and, for each, a
-    bracketed safeguarded Newton method on ``g(t) = c'(t).(c(t) - x) = 0`` in
-    ``[t_i - dt, t_i + dt]`` (both neighbouring sample intervals); the nearest result wins.
+    sample distances near the smallest one: usually just the nearest sample; the search
+    starts from :class:`_SampleHints`) and, for each, a bracketed safeguarded Newton method
+    on ``g(t) = c'(t).(c(t) - x) = 0`` in ``[t_i - dt, t_i + dt]`` (both neighbouring sample
+    intervals, where ``g`` and ``g'`` come from values cached at the samples) from the root
+    of the cubic that interpolates them (:func:`_hermite_root`); the nearest result wins.
     Assumption (dense sampling): the distance to ``x`` is unimodal over any two neighbouring
     sample intervals that hold a local minimum, and the arc between consecutive samples is
     less than 1.5 times their chord; raise ``n_samples`` for curves with features finer than
