@@ -185,7 +185,7 @@ def determinant(nodes: Float, dphi: Float) -> Float:
     """``det J``, ``(m, p)``, from nodes ``(m, ndofs, 3)`` and derivatives ``(3, p, ndofs)``.
 
     Blocks of :data:`_CHUNK` cells: one matrix product gives the Jacobian entries at the
-    ``p`` points, the cofactor expansion runs in place on contiguous rows.
+    ``p`` points, the cofactor expansion runs on its rows of ``p`` contiguous values.
     """
     m, n, _ = nodes.shape
     p = dphi.shape[1]
@@ -195,7 +195,7 @@ def determinant(nodes: Float, dphi: Float) -> Float:
         block = nodes[s : s + _CHUNK]
         c = len(block)
         g = (block.transpose(2, 0, 1).reshape(3 * c, n) @ d).reshape(3, c, 3, p)
-        j = np.ascontiguousarray(g.transpose(0, 2, 1, 3))  # j[i, k]: d x_i / d X_k, (c, p)
+        j = g.transpose(0, 2, 1, 3)  # j[i, k]: d x_i / d X_k, (c, p) rows of p contiguous
         a = j[1, 1] * j[2, 2]
         a -= j[1, 2] * j[2, 1]
         a *= j[0, 0]

@@ -103,27 +103,50 @@ def gamma_entities(
     c2f = topo.connectivity(3, 2).array.reshape(-1, 4)
     c2e = topo.connectivity(3, 1).array.reshape(-1, 6)
     c2v = topo.connectivity(3, 0).array.reshape(-1, 4)
-    if cells is not None:
-        c2f, c2e, c2v = c2f[cells], c2e[cells], c2v[cells]
+    if cells is not None:  # (the face and edge rows of the few cells that need them below)
+        c2v = c2v[cells]
+    else:
+        cells = np.arange(len(c2v))
 
     fv = la.vector(topo.index_map(2), 1)
     fv.array[:] = 0.0
     fv.array[immersed] = 1.0
     fv.scatter_forward()  # the owners' tags on the ghost faces
-    on_face = fv.array[c2f] > 0  # (num_cells, 4)
-    # a face of Gamma_h has its three vertices on Gamma (guards against a stale tag)
-    on_face &= np.stack([on_gamma[np.delete(c2v, k, axis=1)].all(axis=1) for k in range(4)], 1)
-    face = np.where(on_face.any(axis=1), np.argmax(on_face, axis=1), -1).astype(np.int8)
+    # A face of Gamma_h has its three vertices on Gamma (which also guards against a stale
+    # tag), an edge of it two: only the cells with that many look at the tags.
+    count = on_gamma[c2v[:, 0]].astype(np.int8)
+    for k in range(1, 4):  # by columns: a sum along a short axis is slow
+        count += on_gamma[c2v[:, k]]
+    rows = np.flatnonzero(count >= 3)
+    og = on_gamma[c2v[rows]]
+    o0, o1, o2, o3 = og[:, 0], og[:, 1], og[:, 2], og[:, 3]
+    on_face = (fv.array[c2f[cells[rows]]] > 0) & np.column_stack(
+        [o1 & o2 & o3, o0 & o2 & o3, o0 & o1 & o3, o0 & o1 & o2]
+    )
+    face = np.full(len(c2v), -1, dtype=np.int8)
+    found = on_face.any(axis=1)
+    face[rows[found]] = np.argmax(on_face[found], axis=1)
 
     has = np.flatnonzero(face >= 0)
     # the edges of face k are the edges without vertex k
     face_edges = np.array([[e for e in range(6) if k not in LOCAL_EDGES[e]] for k in range(4)])
     ev = la.vector(topo.index_map(1), 1)
     ev.array[:] = 0.0
-    ev.array[c2e[has[:, None], face_edges[face[has]]].ravel()] = 1.0
+    ev.array[c2e[cells[has][:, None], face_edges[face[has]]].ravel()] = 1.0
     ev.scatter_reverse(la.InsertMode.add)
     ev.scatter_forward()
-    return face, ev.array[c2e] > 0
+    two = np.flatnonzero(count >= 2)
+    edges = np.zeros((len(c2v), 6), dtype=bool)
+    edges[two] = ev.array[c2e[cells[two]]] > 0
+    return face, edges
+
+
+def any_edge(edges: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
+    """Whether each cell has an edge of Gamma_h, from :func:`gamma_entities`' ``edges``."""
+    out = edges[:, 0].copy()
+    for k in range(1, edges.shape[1]):  # by columns: an any() along a short axis is slow
+        out |= edges[:, k]
+    return out
 
 
 @lru_cache(maxsize=512)

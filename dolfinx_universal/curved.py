@@ -275,7 +275,7 @@ def _curved_cells(
 
         return pc, triangles
     face, edges = _curved_tet.gamma_entities(cm.mesh, cm.on_gamma, cm.facet_tags.find(IMMERSED))
-    curved = np.flatnonzero(edges.any(axis=1))
+    curved = np.flatnonzero(_curved_tet.any_edge(edges))
 
     def tetrahedra(cells: npt.NDArray, y: Float) -> Float:
         return _curved_tet.map_nodes(

@@ -407,7 +407,7 @@ class MovingDomain:
                 self._kind,
                 boundary.closest_point,
             )
-            curved = np.flatnonzero(kept & edges.any(axis=1))
+            curved = np.flatnonzero(kept & _curved_tet.any_edge(edges))
         ratio = jacobian_ratio(nodes[curved], self.degree) if self.degree > 1 else np.ones(0)
         bad = ratio <= 0
         raise_collective(
