@@ -178,7 +178,9 @@ def lattice_derivatives(degree: int) -> Float:
 
 
 _CHUNK = 512
-"""Cells per block of :func:`determinant` (its nine ``(cells, p)`` factors stay in cache)."""
+"""Cells per block of :func:`determinant` (its nine ``(cells, p)`` factors stay in cache),
+half as many beyond 35 points (q >= 3: measured 10 % faster at q = 3, the same at q = 4;
+at q = 2 the full block is the fastest)."""
 
 
 def determinant(nodes: Float, dphi: Float) -> Float:
@@ -191,8 +193,9 @@ def determinant(nodes: Float, dphi: Float) -> Float:
     p = dphi.shape[1]
     d = np.ascontiguousarray(dphi.transpose(2, 0, 1).reshape(n, 3 * p))  # (ndofs, (k, p))
     out = np.empty((m, p))
-    for s in range(0, m, _CHUNK):
-        block = nodes[s : s + _CHUNK]
+    chunk = _CHUNK if p <= 35 else _CHUNK // 2
+    for s in range(0, m, chunk):
+        block = nodes[s : s + chunk]
         c = len(block)
         g = (block.transpose(2, 0, 1).reshape(3 * c, n) @ d).reshape(3, c, 3, p)
         j = g.transpose(0, 2, 1, 3)  # j[i, k]: d x_i / d X_k, (c, p) rows of p contiguous
