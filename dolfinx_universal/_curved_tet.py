@@ -141,14 +141,6 @@ def gamma_entities(
     return face, edges
 
 
-def any_edge(edges: npt.NDArray[np.bool_]) -> npt.NDArray[np.bool_]:
-    """Whether each cell has an edge of Gamma_h, from :func:`gamma_entities`' ``edges``."""
-    out = edges[:, 0].copy()
-    for k in range(1, edges.shape[1]):  # by columns: an any() along a short axis is slow
-        out |= edges[:, k]
-    return out
-
-
 @lru_cache(maxsize=512)
 def _program(degree: int, d: int, mask: int) -> tuple[Float, npt.NDArray[np.intp], Float]:
     """The blend at the reference nodes of one pattern as ``weight * delta(mu)`` terms.

@@ -17,6 +17,8 @@ __all__ = [
     "Bool",
     "Float",
     "Int",
+    "all_rows",
+    "any_rows",
     "as_points",
     "cell_diameters",
     "cross2",
@@ -65,6 +67,23 @@ def positive(value: float, name: str) -> float:
     if not (np.isfinite(value) and value > 0):
         raise ValueError(f"{name} must be a positive finite number, got {value}")
     return value
+
+
+def any_rows(a: Bool) -> Bool:
+    """``a.any(axis=1)`` of a boolean ``(m, k)`` array, by columns (a reduction along a
+    short axis is slow in numpy)."""
+    out = a[:, 0].copy()
+    for k in range(1, a.shape[1]):
+        out |= a[:, k]
+    return out
+
+
+def all_rows(a: Bool) -> Bool:
+    """``a.all(axis=1)`` of a boolean ``(m, k)`` array, by columns (see :func:`any_rows`)."""
+    out = a[:, 0].copy()
+    for k in range(1, a.shape[1]):
+        out &= a[:, k]
+    return out
 
 
 def norm2(v: Float) -> Float:

@@ -19,7 +19,7 @@ from dolfinx import fem
 from dolfinx import mesh as dmesh
 
 from . import _curved_tet
-from ._geometry import Bool, Float, lagrange_element
+from ._geometry import Bool, Float, any_rows, lagrange_element
 from .classify import positively_cut
 from .conform import IMMERSED, ConformingMesh
 from .dimensions import cell_kernels
@@ -275,7 +275,7 @@ def _curved_cells(
 
         return pc, triangles
     face, edges = _curved_tet.gamma_entities(cm.mesh, cm.on_gamma, cm.facet_tags.find(IMMERSED))
-    curved = np.flatnonzero(_curved_tet.any_edge(edges))
+    curved = np.flatnonzero(any_rows(edges))
 
     def tetrahedra(cells: npt.NDArray, y: Float) -> Float:
         return _curved_tet.map_nodes(

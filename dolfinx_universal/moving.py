@@ -19,6 +19,7 @@ from dolfinx import mesh as dmesh
 
 from . import _curved_tet
 from . import _tetrahedron as tet
+from ._geometry import all_rows, any_rows
 from .boundaries import Boundary
 from .classify import interior_angles, positively_cut
 from .conform import UniversalMesh
@@ -161,7 +162,7 @@ class MovingDomain:
         self.active_cells = np.empty(0, dtype=np.int32)
         """Cells of ``T_h^sub`` (process-local, owned and ghost)."""
         self._cells = np.arange(len(self._c2v), dtype=np.int32)
-        self._active_tags = self._tags()
+        self._active_tags: dmesh.MeshTags | None = self._tags()
         self.steps: list[StepReport] = []
         self._coverage: tuple[SizeField, npt.NDArray[np.float64], int, float | None] | None = None
 
@@ -407,7 +408,7 @@ class MovingDomain:
                 self._kind,
                 boundary.closest_point,
             )
-            curved = np.flatnonzero(kept & _curved_tet.any_edge(edges))
+            curved = np.flatnonzero(kept & any_rows(edges))
         ratio = jacobian_ratio(nodes[curved], self.degree) if self.degree > 1 else np.ones(0)
         bad = ratio <= 0
         raise_collective(
@@ -435,7 +436,7 @@ class MovingDomain:
         self._dirty, self._kept = near, sm.kept
         self.active.x.array[self._cell_dof[redo]] = kept.astype(np.float64)
         self.active_cells = np.flatnonzero(sm.kept).astype(np.int32)
-        self._active_tags = self._tags()
+        self._active_tags = None  # made when asked for (active_tags)
         k = np.argmin(sm.sign[cells[cut]], axis=1)
         self.immersed_facets = np.unique(self._c2f[redo[cut], k]).astype(np.int32)
         self.boundary = boundary
@@ -528,7 +529,7 @@ class MovingDomain:
         kept = sm.kept[:nco]
         near_kept = np.flatnonzero(kept & near[:nco])
         cv = c2v[near_kept]
-        plain = ~sm.moved[cv].any(axis=1) & (sm.sign[cv] < 0).all(axis=1)
+        plain = ~any_rows(sm.moved[cv]) & all_rows(sm.sign[cv] < 0)
         x = self.universal.vertex_coordinates
         rep = cell_quality(self.comm, sm.y, x, cv[~plain], sm.sign, sm.moved)
         far = kept & ~near[:nco]
@@ -606,13 +607,16 @@ class MovingDomain:
     def active_tags(self) -> dmesh.MeshTags:
         """The cells of ``T_h^sub`` as cell tags: 1 on active cells, 0 on the others.
 
-        Every process-local cell (owned and ghost) is tagged. A new object is made by each
-        :meth:`update` (0 everywhere before the first). Integration entities are read from
-        tags when a form is compiled, so a form built once and reused over the steps must
-        use the indicator :attr:`active`; the tags serve output, submeshes
+        Every process-local cell (owned and ghost) is tagged. A new object is made after each
+        :meth:`update`, when first asked for (0 everywhere before the first update).
+        Integration entities are read from tags when a form is compiled, so a form built
+        once and reused over the steps must use the indicator :attr:`active`; the tags
+        serve output, submeshes
         (``dolfinx.mesh.create_submesh(md.mesh, 2, md.active_tags.find(1))``) and forms
         made for one step (``ufl.dx(subdomain_data=md.active_tags, subdomain_id=1)``).
         """
+        if self._active_tags is None:
+            self._active_tags = self._tags()
         return self._active_tags
 
     def inactive_dofs(self, V: fem.FunctionSpace) -> npt.NDArray[np.int32]:

@@ -17,7 +17,7 @@ import numpy as np
 import numpy.typing as npt
 
 from . import _tetrahedron
-from ._geometry import edge_lengths, interior_angles, signed_areas
+from ._geometry import any_rows, edge_lengths, interior_angles, signed_areas
 from .classify import positively_cut
 
 if TYPE_CHECKING:
@@ -32,14 +32,24 @@ dihedral angle histogram as a list of ints)."""
 
 def edge_ratio(x: npt.NDArray[np.float64], cells: npt.NDArray) -> npt.NDArray[np.float64]:
     """``Q`` = longest edge / shortest edge of each triangle, ``(m,)`` (1 when equilateral)."""
-    e = edge_lengths(x, cells)
-    return e.max(axis=1) / e.min(axis=1)
+    return _edge_ratio(edge_lengths(x, cells))
 
 
 def radius_ratio(x: npt.NDArray[np.float64], cells: npt.NDArray) -> npt.NDArray[np.float64]:
     """Circumradius / inradius of each triangle, ``(m,)`` (2 when equilateral)."""
-    e = edge_lengths(x, cells)
-    area = np.abs(signed_areas(x, cells))
+    return _radius_ratio(edge_lengths(x, cells), signed_areas(x, cells))
+
+
+def _edge_ratio(e: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """:func:`edge_ratio` from the edge lengths ``(m, 3)``."""
+    return e.max(axis=1) / e.min(axis=1)
+
+
+def _radius_ratio(
+    e: npt.NDArray[np.float64], signed_area: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """:func:`radius_ratio` from the edge lengths ``(m, 3)`` and signed areas ``(m,)``."""
+    area = np.abs(signed_area)
     semi = 0.5 * e.sum(axis=1)
     circum = e.prod(axis=1) / (4.0 * area)
     inr = area / semi
@@ -114,7 +124,7 @@ def cell_quality(
     report = {
         "n_cells": comm.allreduce(len(cells), op=MPI.SUM),
         "n_positively_cut": comm.allreduce(int(positively_cut(sign, cells).sum()), op=MPI.SUM),
-        "n_unaltered": comm.allreduce(int((~moved[cells].any(axis=1)).sum()), op=MPI.SUM),
+        "n_unaltered": comm.allreduce(int((~any_rows(moved[cells])).sum()), op=MPI.SUM),
     }
     report.update(shape(comm, x, background_x, cells, sign))
     report["percent_unaltered"] = 100.0 * report["n_unaltered"] / max(report["n_cells"], 1)
@@ -130,8 +140,10 @@ def _triangles(
 ) -> QualityReport:
     """Angle, radius ratio, edge ratio and area figures of triangles (reduced)."""
     ang = np.degrees(interior_angles(x, cells))
-    inside = (sign[cells] < 0).sum(axis=1)
-    Q = edge_ratio(x, cells)
+    neg = sign[cells] < 0
+    inside = neg[:, 0].astype(np.int8) + neg[:, 1] + neg[:, 2]  # vertices inside, by columns
+    e = edge_lengths(x, cells)  # once for the edge and radius ratios
+    Q = _edge_ratio(e)
     area0 = signed_areas(background_x, cells)
     area1 = signed_areas(x, cells)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -143,7 +155,7 @@ def _triangles(
     report: QualityReport = {
         "theta_min_deg": red(float(ang.min()) if len(cells) else 180.0, MPI.MIN, 180.0),
         "theta_max_deg": red(float(ang.max()) if len(cells) else 0.0, MPI.MAX, 0.0),
-        "q_max": red(float(radius_ratio(x, cells).max()) if len(cells) else 0.0, MPI.MAX, 0.0),
+        "q_max": red(float(_radius_ratio(e, area1).max()) if len(cells) else 0.0, MPI.MAX, 0.0),
     }
     for k in (3, 2, 1):
         sel = Q[inside == k]
