@@ -312,8 +312,9 @@ def perturb(
         new = (vertex_reduce(imv, flag, "sum") > 0) & ~relocated
         if comm.allreduce(int(new[: imv.size_local].sum())) == 0:
             break
-        xp[new], phi[new], s[new] = closest[new], 0.0, 1.0
-        relocated |= new
+        at = np.flatnonzero(new)  # (indices: one pass over the vertices, not four)
+        xp[at], phi[at], s[at] = closest[at], 0.0, 1.0
+        relocated[at] = True
     return xp, phi, s, comm.allreduce(int(relocated[: imv.size_local].sum()))
 
 
