@@ -53,9 +53,8 @@ def as_points(x: npt.ArrayLike, name: str = "x", dim: int = 2) -> Float:
         raise ValueError(f"{name} must have shape (n, 2) or (n, 3), got {a.shape}")
     else:
         a = np.ascontiguousarray(a[:, :2])
-    bad = ~np.isfinite(a).all(axis=1)
-    if bad.any():
-        i = int(np.argmax(bad))
+    if not np.isfinite(a).all():  # (one reduction over the array; rows only to report)
+        i = int(np.argmax(~np.isfinite(a).all(axis=1)))
         kind = "NaN" if np.isnan(a[i]).any() else "inf"
         raise ValueError(f"{name} contains {kind} at index {i} ({name}={a[i].tolist()})")
     return a
