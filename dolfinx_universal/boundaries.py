@@ -243,9 +243,10 @@ def _candidates(
             js = start[started]
             ds = np.sqrt((x[started, 0] - pts[js, 0]) ** 2 + (x[started, 1] - pts[js, 1]) ** 2)
             for w, cw in zip(_WINDOWS, clear):
-                sub = started[left[started]]
                 if w != max(_WINDOWS):  # the points its clearance may settle (ds >= d_min)
                     sub = started[(cw[js] - ds) * (1 - 1e-9) > (ds + reach) * (1 + 1e-9)]
+                else:  # the wide window: the points the narrow one left
+                    sub = started[left[started]]
                 if not len(sub):
                     continue
                 done, pi, si = _window_candidates(
@@ -318,11 +319,13 @@ class _SampleHints:
         The loop's samples in order ``(n, 2)``.
     tree
         A k-d tree of ``pts``.
+    prev, nxt
+        Each sample's neighbours along the loop ``(n,)``.
     spacing
         The longest chord between consecutive samples.
     """
 
-    def __init__(self, pts: Float, tree: cKDTree, spacing: float) -> None:
+    def __init__(self, pts: Float, tree: cKDTree, prev: Int, nxt: Int, spacing: float) -> None:
         self.c = c = _HINT_CELL * max(spacing, 1e-300)
         ij = np.floor(pts[:: max(1, _HINT_CELL // 2)] / c).astype(np.int64)  # two per cell
         r = np.arange(-_HINT_BAND, _HINT_BAND + 1)
@@ -332,9 +335,7 @@ class _SampleHints:
         centres = (np.column_stack([i, j]) - _KEY_OFFSET + 0.5) * c
         self.near = np.asarray(tree.query(centres)[1], dtype=np.intp)
         # Per sample: its coordinates, the chord of its neighbours and 2 / its length^2.
-        n = len(pts)
         self.px, self.py = np.ascontiguousarray(pts[:, 0]), np.ascontiguousarray(pts[:, 1])
-        nxt, prev = np.roll(np.arange(n), -1), np.roll(np.arange(n), 1)
         self.tx, self.ty = self.px[nxt] - self.px[prev], self.py[nxt] - self.py[prev]
         with np.errstate(divide="ignore"):
             self.scale = np.where(
@@ -451,7 +452,8 @@ def _window_candidates(
         dj = d0
     lim = d0 + reach
     # Every sample within `wide` (slightly enlarged against rounding) must be inner. The
-    # samples outside the window lie at least clear[j0] - d0 from x (triangle inequality);
+    # samples outside the window lie at least clear[j0] - dj from x (triangle inequality,
+    # dj the distance to the window's centre j0);
     # where that does not prove it, a ball count of the tree decides.
     wide = lim * (1 + 1e-9) + 1e-300
     done = (clear[j0] - dj) * (1 - 1e-9) > wide
@@ -514,12 +516,6 @@ _CURVATURE_SAFETY = 4.0
 """Factor on the cubic's ``|g''|`` in the bound :func:`_bracketed_newton` stops on: the
 cubic's ``g''`` differs from that of ``g`` by ``O(h^2)`` relative (``h`` the bracket, one
 sample spacing on each side)."""
-
-
-_HERMITE_STEPS = 2
-"""Newton steps on the cubic of :func:`_hermite_root` (from the secant's root, whose error
-is ``O(h^2)``: after two steps the start is within ``O(h^4)`` of the root of ``g``, which
-one Newton step on ``g`` then takes to rounding)."""
 
 
 def _bracketed_newton(
@@ -1206,8 +1202,8 @@ class ParametricCurve(Boundary):
 
     @cached_property
     def _hints(self) -> _SampleHints:
-        _, p, tree, _, _, h = self._samples
-        return _SampleHints(p, tree, h)
+        _, p, tree, prev, nxt, h = self._samples
+        return _SampleHints(p, tree, prev, nxt, h)
 
     @cached_property
     def _sample_derivatives(self) -> tuple[Float, ...]:

@@ -45,7 +45,7 @@ from mpi4py import MPI
 import numpy as np
 import numpy.typing as npt
 
-from ._geometry import Bool, Float, Int, rot90
+from ._geometry import Bool, Float, Int, any_rows, rot90
 from .validation import collective_call, vertex_reduce
 
 if TYPE_CHECKING:
@@ -473,7 +473,7 @@ def relax_vertices(
     slid = verts[compass.gamma]
     slid = slid[np.any(y[slid] != y0[slid], axis=1)]
     xp[slid] = y[slid] + phi[slid, None] * compass.nrm[slid]
-    moved = (y[:, 0] != x0[:, 0]) | (y[:, 1] != x0[:, 1])
+    moved = any_rows(y != x0)
     return Relaxation(y, xp, moved, num_moves, done)
 
 
