@@ -56,7 +56,8 @@ class StepReport:
     """:func:`~dolfinx_universal.quality.cell_quality` of the active (straight) triangles."""
     num_active_cells: int
     num_updated_cells: int
-    """Cells whose geometry nodes were rewritten (global): those near Gamma now or before."""
+    """Cells whose geometry nodes were rewritten (global): those with a vertex moved or on
+    Gamma now or at the previous step, and those whose activity changed."""
     min_jacobian_ratio: float
 
 
@@ -90,9 +91,9 @@ class MovingDomain:
     The DOLFINx mesh :attr:`mesh` is the *whole* background with a degree-q coordinate
     element; it is created once, so its topology, dofmaps, sparsity patterns and every form
     compiled on it are reused for all steps. :meth:`update` rewrites, in place, the geometry
-    nodes of the cells near the boundary (now or at the previous step) and the cell indicator
-    :attr:`active` (1 on ``T_h^sub``, 0 on the triangles outside the domain). Forms are
-    written with the indicator::
+    nodes of the cells with a vertex moved or on Gamma (now or at the previous step) and the
+    cell indicator :attr:`active` (1 on ``T_h^sub``, 0 on the triangles outside the domain).
+    Forms are written with the indicator::
 
         a = md.active * inner(grad(u), grad(v)) * dx
 
@@ -367,12 +368,14 @@ class MovingDomain:
             raise type(e)(f"step {len(self.steps)}: {e}", e.points, e.refinable) from None
         t1 = time.perf_counter()
         c2v = self._c2v
-        # Cells to rewrite: those near Gamma now, and those near it at the previous step
-        # (restored to their straight background shape if they are no longer near).
-        # Cells whose activity changed away from Gamma (a large jump of the body) are
-        # rewritten too, to set their indicator.
+        # Cells to rewrite: those whose nodes differ from the background's now (a vertex
+        # moved or on Gamma: every curved cell has one), and those that differed at the
+        # previous step (restored to their straight background shape). Cells whose
+        # activity changed elsewhere (a large jump of the body) are rewritten too, to set
+        # their indicator. All of them are among the band's cells.
+        band = sm.near_cells
         near = np.zeros(len(c2v), dtype=bool)
-        near[sm.near_cells] = True
+        near[band[any_rows((sm.moved | sm.on_gamma)[c2v[band]])]] = True
         redo = np.flatnonzero(near | self._dirty | (sm.kept != self._kept))
         cells = c2v[redo]
         kept = sm.kept[redo]
