@@ -54,6 +54,7 @@ __all__ = [
     "star_entries",
     "star_faces",
     "star_quality",
+    "summary_and_volumes",
     "tangent_directions",
 ]
 
@@ -163,15 +164,31 @@ def _soa_corners(x: Float, cells: Int) -> list[list[Float]]:
     return [[x[:, i][c] for i in range(3)] for c in cols]
 
 
-def _soa_dihedral(p: list[list[Float]], v6: Float) -> Float:
-    """:func:`dihedral_angles` of corners ``p`` (:func:`_soa_corners`) with ``6 V`` ``v6``."""
-    n = [_soa_cross(_soa_sub(p[b], p[a]), _soa_sub(p[c], p[a])) for a, b, c in FACETS]
+def _soa_normals(p: list[list[Float]]) -> list[list[Float]]:
+    """Area normals ``(b - a) x (c - a)`` of the facets :data:`FACETS` of corners ``p``."""
+    return [_soa_cross(_soa_sub(p[b], p[a]), _soa_sub(p[c], p[a])) for a, b, c in FACETS]
+
+
+def _soa_edges_sq(p: list[list[Float]]) -> list[Float]:
+    """Squared lengths of the edges :data:`EDGES` of corners ``p``."""
+    return [_soa_sq(_soa_sub(p[j], p[i])) for i, j in EDGES]
+
+
+def _soa_dihedral(
+    p: list[list[Float]],
+    v6: Float,
+    n: list[list[Float]] | None = None,
+    edges_sq: list[Float] | None = None,
+) -> Float:
+    """:func:`dihedral_angles` of corners ``p`` (:func:`_soa_corners`) with ``6 V`` ``v6``
+    (and the facet normals and squared edge lengths, if already computed)."""
+    n = _soa_normals(p) if n is None else n
+    edges_sq = _soa_edges_sq(p) if edges_sq is None else edges_sq
     av6 = np.abs(v6)
     angles = np.empty((len(av6), 6))
-    for e, ((i, j), (k, m)) in enumerate(zip(EDGES, EDGES[::-1])):
+    for e, (k, m) in enumerate(EDGES[::-1]):
         nk, nl = n[k], n[m]
-        length = np.sqrt(_soa_sq(_soa_sub(p[j], p[i])))
-        theta = np.arctan2(av6 * length, -_soa_dot(nk, nl))
+        theta = np.arctan2(av6 * np.sqrt(edges_sq[e]), -_soa_dot(nk, nl))
         undefined = (_soa_sq(nk) == 0.0) | (_soa_sq(nl) == 0.0)
         angles[:, e] = np.where(undefined, np.nan, theta)
     return angles
@@ -213,10 +230,15 @@ def mean_ratio(x: Float, cells: Int) -> Float:
     tetrahedron (Knupp 2001).
     """
     p = _soa_corners(x, cells)
-    lsum = np.zeros(len(p[0][0]))
-    for i, j in EDGES:
-        lsum += _soa_sq(_soa_sub(p[j], p[i]))
-    return _mean_ratio(_soa_det6(p), lsum)
+    return _mean_ratio(_soa_det6(p), _lsum(_soa_edges_sq(p)))
+
+
+def _lsum(edges_sq: list[Float]) -> Float:
+    """Sum of the squared edge lengths (in the order :data:`EDGES`)."""
+    lsum = np.zeros(len(edges_sq[0]))
+    for sq in edges_sq:
+        lsum += sq
+    return lsum
 
 
 def radius_ratio(x: Float, cells: Int) -> Float:
@@ -229,14 +251,21 @@ def radius_ratio(x: Float, cells: Int) -> Float:
     ratio is ``108 V^2 / (S |N|)``.
     """
     p = _soa_corners(x, cells)
-    d = [_soa_sub(p[k], p[0]) for k in (1, 2, 3)]
-    c23, c31, c12 = _soa_cross(d[1], d[2]), _soa_cross(d[2], d[0]), _soa_cross(d[0], d[1])
-    s = [_soa_sq(dk) for dk in d]
-    big_n = [s[0] * c23[i] + s[1] * c31[i] + s[2] * c12[i] for i in range(3)]
-    v6 = _soa_dot(d[0], c23)
+    return _soa_radius_ratio(_soa_det6(p), _soa_normals(p), _soa_edges_sq(p))
+
+
+def _soa_radius_ratio(v6: Float, n: list[list[Float]], edges_sq: list[Float]) -> Float:
+    """:func:`radius_ratio` from ``6 V``, the facet normals and the squared edge lengths.
+
+    With ``d_k = x_k - x_0``, the facets through vertex 0 have the normals ``-d_2 x d_3``,
+    ``-d_3 x d_1`` and ``-d_1 x d_2`` (facets 1, 2, 3), so ``-N`` is
+    ``|d_1|^2 n_1 + |d_2|^2 n_2 + |d_3|^2 n_3`` (exactly: rounding is odd).
+    """
+    s1, s2, s3 = edges_sq[5], edges_sq[4], edges_sq[3]  # |d_1|^2, |d_2|^2, |d_3|^2
+    big_n = [s1 * n[1][i] + s2 * n[2][i] + s3 * n[3][i] for i in range(3)]
     area = np.zeros(len(v6))
-    for a, b, c in FACETS:
-        area += np.sqrt(_soa_sq(_soa_cross(_soa_sub(p[b], p[a]), _soa_sub(p[c], p[a]))))
+    for nk in n:
+        area += np.sqrt(_soa_sq(nk))
     area *= 0.5
     den = area * np.sqrt(_soa_sq(big_n))
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -447,23 +476,37 @@ def quality_summary(
     ``n_inverted`` (``orientation * V <= 0``, flat cells included) and ``n_degenerate``
     (cells with an undefined dihedral angle: a facet of zero area).
     """
+    return summary_and_volumes(x, cells, orientation)[0]
+
+
+def summary_and_volumes(
+    x: Float, cells: Int, orientation: Float | None = None
+) -> tuple[dict[str, float | int | npt.NDArray[np.int64]], Float]:
+    """:func:`quality_summary` and the :func:`signed_volumes` ``(m,)`` it computes on the way."""
     m = len(cells)
     flip = _orientation_flip(orientation, m)
     sign = np.where(flip, -1.0, 1.0)
-    ang = np.degrees(dihedral_angles(x, cells))
+    # The corners, 6 V, facet normals and edge lengths once, for all the figures.
+    p = _soa_corners(x, cells)
+    v6 = _soa_det6(p)
+    n, edges_sq = _soa_normals(p), _soa_edges_sq(p)
+    ang = np.degrees(_soa_dihedral(p, v6, n, edges_sq))
     defined = ang[np.isfinite(ang)]
     hist, _ = np.histogram(defined, bins=DIHEDRAL_BIN_EDGES)
-    mr = sign * mean_ratio(x, cells)
-    return {
+    mr = sign * _mean_ratio(v6, _lsum(edges_sq))
+    rr = _soa_radius_ratio(v6, n, edges_sq)
+    volumes = v6 / 6.0
+    summary: dict[str, float | int | npt.NDArray[np.int64]] = {
         "n_cells": m,
         "dihedral_min_deg": float(defined.min()) if len(defined) else 180.0,
         "dihedral_max_deg": float(defined.max()) if len(defined) else 0.0,
         "dihedral_histogram": hist.astype(np.int64),
-        "radius_ratio_min": float(radius_ratio(x, cells).min()) if m else 1.0,
+        "radius_ratio_min": float(rr.min()) if m else 1.0,
         "mean_ratio_min": float(mr.min()) if m else 1.0,
-        "n_inverted": int(np.count_nonzero(sign * signed_volumes(x, cells) <= 0.0)),
+        "n_inverted": int(np.count_nonzero(sign * volumes <= 0.0)),
         "n_degenerate": int(np.count_nonzero(np.isnan(ang).any(axis=1))),
     }
+    return summary, volumes
 
 
 def _fibonacci_sphere(n: int) -> Float:

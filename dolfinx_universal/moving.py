@@ -557,7 +557,8 @@ class MovingDomain:
                 rep["radius_ratio_min"] = min(rep["radius_ratio_min"], ext("rr", np.min, 1.0))
                 rep["mean_ratio_min"] = min(rep["mean_ratio_min"], ext("mr", np.min, 1.0))
                 rep["min_volume_ratio"] = min(rep["min_volume_ratio"], 1.0)
-                hist = b["hist"][far].sum(axis=0).astype(np.int64)
+                nbins = len(tet.DIHEDRAL_BIN_EDGES) - 1
+                hist = np.bincount(b["bins"][far].ravel(), minlength=nbins).astype(np.int64)
                 self.comm.Allreduce(MPI.IN_PLACE, hist, op=MPI.SUM)
                 rep["dihedral_histogram"] = [
                     int(a + c) for a, c in zip(rep["dihedral_histogram"], hist)
@@ -580,15 +581,14 @@ class MovingDomain:
                 "Q": edge_ratio(x, cells),
             }
         ang = np.degrees(tet.dihedral_angles(x, cells))
-        bins = np.clip(np.searchsorted(tet.DIHEDRAL_BIN_EDGES, ang, side="right") - 1, 0, 17)
-        hist = np.zeros((len(cells), len(tet.DIHEDRAL_BIN_EDGES) - 1))
-        np.add.at(hist, (np.repeat(np.arange(len(cells)), 6), bins.ravel()), 1.0)
+        bins = np.searchsorted(tet.DIHEDRAL_BIN_EDGES, ang, side="right") - 1
+        bins = np.clip(bins, 0, len(tet.DIHEDRAL_BIN_EDGES) - 2).astype(np.int8)
         return {
             "theta_min": ang.min(axis=1),
             "theta_max": ang.max(axis=1),
             "rr": tet.radius_ratio(x, cells),
             "mr": np.abs(tet.mean_ratio(x, cells)),
-            "hist": hist,
+            "bins": bins,  # each dihedral angle's histogram bin (m, 6)
         }
 
     @cached_property

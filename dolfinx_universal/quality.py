@@ -177,8 +177,7 @@ def _tetrahedra(
     Orientation and volume ratio are taken against the background tetrahedra (DOLFINx
     does not orient tetrahedra, so either sign is valid there)."""
     vol0 = _tetrahedron.signed_volumes(background_x, cells)
-    vol1 = _tetrahedron.signed_volumes(x, cells)
-    s = _tetrahedron.quality_summary(x, cells, orientation=np.where(vol0 < 0, -1.0, 1.0))
+    s, vol1 = _tetrahedron.summary_and_volumes(x, cells, np.where(vol0 < 0, -1.0, 1.0))
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = vol1 / vol0
     hist = np.ascontiguousarray(s["dihedral_histogram"], dtype=np.int64)
