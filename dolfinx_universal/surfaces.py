@@ -229,25 +229,33 @@ class Sphere(Surface):
         d = _points(x) - self.center
         return np.where((d * d).sum(axis=1) < self.radius**2, -1.0, 1.0)
 
-    def _direction(self, x: npt.ArrayLike) -> Float:
-        d = _points(x) - self.center
-        r = _normd(d)
-        u = np.tile([1.0, 0.0, 0.0], (len(d), 1))  # the centre projects onto c + (R, 0, 0)
+    def _direction(self, x: npt.ArrayLike) -> list[Float]:
+        """Unit directions from the centre, as coordinate columns (``(1, 0, 0)`` at the
+        centre, which projects onto ``c + (R, 0, 0)``)."""
+        x = _points(x)
+        d = [x[:, i] - self.center[i] for i in range(3)]
+        r = np.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2)
         pos = r > 0
-        u[pos] = d[pos] / r[pos, None]
-        return u
+        if pos.all():
+            return [di / r for di in d]
+        r = np.where(pos, r, 1.0)
+        return [np.where(pos, di / r, float(i == 0)) for i, di in enumerate(d)]
+
+    def _on_sphere(self, u: list[Float]) -> Float:
+        """The points ``center + radius u`` of directions ``u`` (columns), ``(n, 3)``."""
+        return np.column_stack([self.center[i] + self.radius * u[i] for i in range(3)])
 
     def closest_point(self, x: npt.ArrayLike) -> Float:
-        return self.center + self.radius * self._direction(x)
+        return self._on_sphere(self._direction(x))
 
     def normal(self, y: npt.ArrayLike) -> Float:
-        return self._direction(y)
+        return np.column_stack(self._direction(y))
 
     def closest_normal(self, x: Float) -> tuple[Float, Float]:
         if not _native(self, Sphere, "closest_point", "normal"):
             return Boundary.closest_normal(self, x)
         u = self._direction(x)
-        return self.center + self.radius * u, u
+        return self._on_sphere(u), np.column_stack(u)
 
     def near(self, x: npt.ArrayLike, distance: float | npt.ArrayLike) -> Bool:
         x = _points(x)
@@ -471,34 +479,32 @@ class Torus(Surface):
         self.frame = _tangent_basis(self.axis[None])[0]
         """Rows ``t1, t2`` ``(2, 3)`` spanning the plane of the core circle."""
 
-    def _offsets(self, x: Float) -> tuple[Float, Float, Float, Float]:
-        """Offsets ``d = x - center (n, 3)``, axial offsets ``z (n,)``, radial offsets
-        ``w (n, 3)`` and radial distances ``rho (n,)``: all that :meth:`sign` and
-        :meth:`near` need (the same arithmetic as :meth:`_core`)."""
-        d = x - self.center
-        z = d @ self.axis
-        w = d - z[:, None] * self.axis
-        w -= (w @ self.axis)[:, None] * self.axis  # again: rounding left along the axis
-        return d, z, w, _normd(w)
+    def _offsets(self, x: Float) -> tuple[list[Float], Float, list[Float], Float]:
+        """Offsets ``d = x - center``, axial offsets ``z (n,)``, radial offsets ``w`` and
+        radial distances ``rho (n,)`` (``d`` and ``w`` as coordinate columns): all that
+        :meth:`sign` and :meth:`near` need (the same arithmetic as :meth:`_core`)."""
+        a = self.axis
+        d = [x[:, i] - self.center[i] for i in range(3)]
+        z = d[0] * a[0] + d[1] * a[1] + d[2] * a[2]
+        w = [d[i] - z * a[i] for i in range(3)]
+        zw = w[0] * a[0] + w[1] * a[1] + w[2] * a[2]  # again: rounding left along the axis
+        w = [w[i] - zw * a[i] for i in range(3)]
+        return d, z, w, np.sqrt(w[0] ** 2 + w[1] ** 2 + w[2] ** 2)
 
-    def _core(self, x: Float) -> tuple[Float, Float, Float, Float]:
-        """Axial offsets ``z (n,)``, radial distances ``rho (n,)``, radial unit vectors
-        ``(n, 3)`` and the closest points of the core circle ``(n, 3)``."""
-        d, z, w, rho = self._offsets(x)
-        u = np.tile(self.frame[0], (len(x), 1))  # on the axis: any direction, t1
-        pos = rho > 4 * _EPS * _normd(d)  # else w is rounding, of any direction
-        u[pos] = w[pos] / rho[pos, None]
-        return z, rho, u, self.center + self.major * u
-
-    def _direction(self, x: Float) -> tuple[Float, Float]:
-        """Closest points of the core circle and the outward normals ``(n, 3)``."""
-        _, _, u, c = self._core(x)
-        v = x - c
-        s = _normd(v)
-        n = u.copy()  # on the core circle: radially outwards
-        pos = s > 0
-        n[pos] = v[pos] / s[pos, None]
-        return c, n
+    def _direction(self, x: Float) -> tuple[list[Float], list[Float]]:
+        """Closest points of the core circle and the outward normals (coordinate columns)."""
+        d, _, w, rho = self._offsets(x)
+        # Radial unit vectors; on the axis (w is rounding, of any direction) t1.
+        pos = rho > 4 * _EPS * np.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2)
+        rho = np.where(pos, rho, 1.0)
+        t1 = self.frame[0]
+        u = [np.where(pos, w[i] / rho, t1[i]) for i in range(3)]
+        c = [self.center[i] + self.major * u[i] for i in range(3)]
+        v = [x[:, i] - c[i] for i in range(3)]
+        s = np.sqrt(v[0] ** 2 + v[1] ** 2 + v[2] ** 2)
+        pos = s > 0  # on the core circle: radially outwards
+        s = np.where(pos, s, 1.0)
+        return c, [np.where(pos, v[i] / s, u[i]) for i in range(3)]
 
     def sign(self, x: npt.ArrayLike) -> Float:
         _, z, _, rho = self._offsets(_points(x))
@@ -508,13 +514,17 @@ class Torus(Surface):
         if not _native(self, Torus, "closest_point", "normal"):
             return Boundary.closest_normal(self, x)
         c, n = self._direction(_points(x))
-        return c + self.minor * n, n
+        return self._on_torus(c, n), np.column_stack(n)
+
+    def _on_torus(self, c: list[Float], n: list[Float]) -> Float:
+        """The points ``c + minor n`` (columns of core points and normals), ``(n, 3)``."""
+        return np.column_stack([c[i] + self.minor * n[i] for i in range(3)])
 
     def closest_point(self, x: npt.ArrayLike) -> Float:
-        return self.closest_normal(_points(x))[0]
+        return self._on_torus(*self._direction(_points(x)))
 
     def normal(self, y: npt.ArrayLike) -> Float:
-        return self._direction(_points(y))[1]
+        return np.column_stack(self._direction(_points(y))[1])
 
     def near(self, x: npt.ArrayLike, distance: float | npt.ArrayLike) -> Bool:
         x = _points(x)
