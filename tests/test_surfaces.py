@@ -377,6 +377,25 @@ def _torus_implicit(R: float, r: float, **kw: object) -> ImplicitSurface:
     return ImplicitSurface(phi, grad, box, genus=1, **kw)  # type: ignore[arg-type]
 
 
+def test_overridden_normal_is_used() -> None:
+    """A subclass that overrides only ``normal`` gets it from ``closest_normal`` (the closed
+    forms are bypassed, not recursed into) and keeps the closed-form closest points."""
+
+    for base, args in ((Sphere, ((0.1, 0.0, 0.0), 0.8)), (Torus, ((0.0, 0.1, 0.0), 0.55, 0.3))):
+
+        class Flipped(base):  # type: ignore[valid-type, misc]
+            def normal(self, y: Float, base: type = base) -> Float:
+                return -base.normal(self, y)
+
+        x = np.random.default_rng(3).uniform(-1.0, 1.0, (50, 3))
+        y, n = Flipped(*args).closest_normal(x)
+        y0, n0 = base(*args).closest_normal(x)
+        np.testing.assert_array_equal(y, y0)
+        # The override sees the closest points, not x: the same unit normals up to a few
+        # ulps of rounding (a wrong normal is off by O(1)).
+        np.testing.assert_allclose(n, -n0, rtol=0.0, atol=1e-14)
+
+
 def test_implicit_torus_against_closed_form() -> None:
     imp, T = _torus_implicit(1.0, 0.3), Torus((0, 0, 0), 1.0, 0.3)
     assert imp.euler_characteristic == 0 and imp.num_components == 1
