@@ -397,6 +397,7 @@ class UniversalMesh:
         # the inward push of the band's inside vertices by M_h (0: snap only)
         self._push = self.alpha if kernels.inward_push else 0.0
         self._facet_arrays: tuple[Int, Int, Int, Int] | None = None
+        self._band_locations = 0  # containment checks so far (the first needs no locator)
         if tdim == 2:
             self._facets()
         n2v = np.empty(len(background.geometry.x), dtype=np.int32)
@@ -554,9 +555,17 @@ class UniversalMesh:
             pts = containment_samples(parts.points)
         # Containment first: a domain leaving the background also breaks Gamma_h there, and
         # "refine" would point the wrong way.
-        if self.tdim == 2:  # the locator of all cells, cached for moving domains
+        if self.tdim == 2:
             cells = near_cells.astype(np.int32)
-            raise_collective(comm, containment_problems(self._locator, pts, cells, comm))
+            if "_locator" in self.__dict__ or self._band_locations:
+                # The locator of all cells, built at the second check of this background
+                # and cached (moving domains: one per step would cost more).
+                problems = containment_problems(self._locator, pts, cells, comm)
+            else:  # the first check (a static domain): a locator of the band's cells only
+                found = CellLocator(self._x, self._c2v[cells]).contains(pts)
+                problems = missing_samples_problems(comm, pts, found)
+            self._band_locations += 1
+            raise_collective(comm, problems)
         else:  # 3D: only the cells that can hold a sample of Gamma (each vertex within its
             # size h, at least the diameter of its cells, of Gamma, and next to a sample)
             near_v = np.abs(phi) <= self.h
