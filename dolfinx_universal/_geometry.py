@@ -28,6 +28,7 @@ __all__ = [
     "norm2",
     "positive",
     "signed_areas",
+    "triangle_measures",
 ]
 
 Float = npt.NDArray[np.float64]
@@ -119,27 +120,61 @@ def rot90(v: Float) -> Float:
     return np.column_stack([-v[:, 1], v[:, 0]])
 
 
-def _corners(x: Float, cells: Int) -> Float:
-    """Planar vertex coordinates of each triangle, shape ``(m, 3, 2)``."""
-    return x[cells][:, :, :2]
+def _corner_columns(x: Float, cells: Int) -> list[tuple[Float, Float]]:
+    """The corners of triangles as coordinate columns: ``p[k] = (x_k, y_k)``, each ``(m,)``,
+    gathered from the columns of ``x``: the arithmetic on these contiguous arrays takes
+    about half the time it takes on an ``(m, 3, 2)`` gather."""
+    cells = np.asarray(cells)
+    xs, ys = x[:, 0], x[:, 1]
+    cols = [np.ascontiguousarray(cells[:, k]) for k in range(3)]
+    return [(xs[c], ys[c]) for c in cols]
+
+
+def _edges(p: list[tuple[Float, Float]]) -> list[tuple[Float, Float]]:
+    """Edge vectors ``p[k + 1] - p[k]`` of corners :func:`_corner_columns`, ``k = 0, 1, 2``."""
+    return [(p[(k + 1) % 3][0] - p[k][0], p[(k + 1) % 3][1] - p[k][1]) for k in range(3)]
+
+
+def _signed_areas(p: list[tuple[Float, Float]]) -> Float:
+    (x0, y0), (x1, y1), (x2, y2) = p
+    d1x, d1y, d2x, d2y = x1 - x0, y1 - y0, x2 - x0, y2 - y0
+    return 0.5 * (d1x * d2y - d1y * d2x)
+
+
+def _lengths(e: list[tuple[Float, Float]]) -> Float:
+    """Lengths ``(m, 3)`` of edge vectors :func:`_edges`."""
+    return np.column_stack([np.sqrt(ex * ex + ey * ey) for ex, ey in e])
+
+
+def _angles(p: list[tuple[Float, Float]], e: list[tuple[Float, Float]]) -> Float:
+    """Interior angles ``(m, 3)`` of corners ``p`` with edge vectors ``e`` (:func:`_edges`):
+    at vertex ``k`` between ``a = e_k`` and ``b = p_(k-1) - p_k`` (computed, not ``-e_(k-1)``:
+    the signed zeros of a collapsed edge give the angles 0 as before)."""
+    out = []
+    for k in range(3):
+        ax, ay = e[k]
+        bx, by = p[k - 1][0] - p[k][0], p[k - 1][1] - p[k][1]
+        dot = ax * bx + ay * by
+        dot += 0.0  # -0 -> +0, as numpy's sum along an axis (which starts from +0) gives
+        out.append(np.arctan2(np.abs(ax * by - ay * bx), dot))
+    return np.column_stack(out)
 
 
 def signed_areas(x: Float, cells: Int) -> Float:
     """Signed areas of triangles, positive for counter-clockwise vertices, shape ``(m,)``."""
-    p = _corners(x, cells)
-    d1, d2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
-    return 0.5 * (d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
+    return _signed_areas(_corner_columns(x, cells))
 
 
 def edge_lengths(x: Float, cells: Int) -> Float:
     """Edge lengths of triangles, shape ``(m, 3)``: column ``k`` from vertex ``k`` to ``k + 1``."""
-    p = _corners(x, cells)
-    return np.linalg.norm(np.roll(p, -1, axis=1) - p, axis=2)
+    return _lengths(_edges(_corner_columns(x, cells)))
 
 
 def cell_diameters(x: Float, cells: Int) -> Float:
     """Longest edge of each triangle, shape ``(m,)``."""
-    return edge_lengths(x, cells).max(axis=1)
+    e = _edges(_corner_columns(x, cells))
+    sq = [ex * ex + ey * ey for ex, ey in e]
+    return np.sqrt(np.maximum(np.maximum(sq[0], sq[1]), sq[2]))
 
 
 def interior_angles(x: Float, cells: Int) -> Float:
@@ -147,8 +182,14 @@ def interior_angles(x: Float, cells: Int) -> Float:
 
     Column ``k`` is the angle at vertex ``k``.
     """
-    p = _corners(x, cells)
-    a = np.roll(p, -1, axis=1) - p  # to the next vertex
-    b = np.roll(p, 1, axis=1) - p  # to the previous vertex
-    cross = np.abs(a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0])
-    return np.arctan2(cross, (a * b).sum(axis=2))
+    p = _corner_columns(x, cells)
+    return _angles(p, _edges(p))
+
+
+def triangle_measures(x: Float, cells: Int) -> tuple[Float, Float, Float]:
+    """Interior angles ``(m, 3)``, edge lengths ``(m, 3)`` and signed areas ``(m,)`` of
+    triangles, from one gather of the corners (the values of :func:`interior_angles`,
+    :func:`edge_lengths` and :func:`signed_areas`)."""
+    p = _corner_columns(x, cells)
+    e = _edges(p)
+    return _angles(p, e), _lengths(e), _signed_areas(p)
