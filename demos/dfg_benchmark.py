@@ -737,9 +737,10 @@ def adaptive_table(rows: list[dict]) -> str:
 # comparisons (at $7 \cdot 10^5$: $2.4 \cdot 10^{-7}$ to $8.7 \cdot 10^{-7}$ against
 # $1.5 \cdot 10^{-6}$ to $8.8 \cdot 10^{-6}$); at $8.8 \cdot 10^4$ the gmsh mesh graded
 # like this demo's field has the smaller lift error ($5.5 \cdot 10^{-5}$ against
-# $1.6 \cdot 10^{-4}$). Meshing is 5.7 to 6.5 times faster than gmsh's generate and
-# `model_to_mesh` at $7 \cdot 10^5$ with the field, 4.3 to 4.7 times with the adaptive
-# field (README, "DFG per degree of freedom against gmsh", for the table).
+# $1.6 \cdot 10^{-4}$). Meshing is 9.4 to 10.2 times faster than gmsh's generate and
+# `model_to_mesh` at $7 \cdot 10^5$ with the field, 5.5 to 5.8 times with the adaptive
+# field, in the latest run (README, "DFG per degree of freedom against gmsh", for the
+# table and the earlier run's 5.7-6.5 and 4.3-4.7 times).
 #
 # ## The study
 
