@@ -136,6 +136,7 @@ def _edges(p: list[tuple[Float, Float]]) -> list[tuple[Float, Float]]:
 
 
 def _signed_areas(p: list[tuple[Float, Float]]) -> Float:
+    """Signed areas ``(m,)`` of corners :func:`_corner_columns`."""
     (x0, y0), (x1, y1), (x2, y2) = p
     d1x, d1y, d2x, d2y = x1 - x0, y1 - y0, x2 - x0, y2 - y0
     return 0.5 * (d1x * d2y - d1y * d2x)
@@ -155,7 +156,7 @@ def _angles(p: list[tuple[Float, Float]], e: list[tuple[Float, Float]]) -> Float
         ax, ay = e[k]
         bx, by = p[k - 1][0] - p[k][0], p[k - 1][1] - p[k][1]
         dot = ax * bx + ay * by
-        dot += 0.0  # -0 -> +0, as numpy's sum along an axis (which starts from +0) gives
+        dot += 0.0  # -0 -> +0: the value numpy's sum over the axis gave (it starts at +0)
         out.append(np.arctan2(np.abs(ax * by - ay * bx), dot))
     return np.column_stack(out)
 

@@ -482,7 +482,7 @@ class Torus(Surface):
     def _offsets(self, x: Float) -> tuple[list[Float], Float, list[Float], Float]:
         """Offsets ``d = x - center``, axial offsets ``z (n,)``, radial offsets ``w`` and
         radial distances ``rho (n,)`` (``d`` and ``w`` as coordinate columns): all that
-        :meth:`sign` and :meth:`near` need (the same arithmetic as :meth:`_core`)."""
+        :meth:`sign` and :meth:`near` need (the same arithmetic as :meth:`_direction`)."""
         a = self.axis
         d = [x[:, i] - self.center[i] for i in range(3)]
         z = d[0] * a[0] + d[1] * a[1] + d[2] * a[2]
