@@ -2,15 +2,18 @@
 
 The background mesh of a moving domain keeps its topology, so its dofmaps, the sparsity
 pattern of every matrix and every compiled form serve all the steps; only the geometry, the
-cell indicator ``md.active`` and the boundary conditions change. Three pieces:
+cell indicator ``md.active`` and the boundary conditions change. Four pieces:
 
 * :func:`reassemble`: assemble a bilinear and a linear form, with boundary conditions,
   into an existing PETSc matrix and vector;
+* :class:`ActiveForm`: a form compiled once whose cell integrals are assembled over the
+  current step's active cells only (its integrands carry the factor ``md.active``, so the
+  other cells add zeros);
 * :class:`MovingLinearProblem`: :class:`dolfinx.fem.petsc.LinearProblem` (forms compiled
   once, one matrix, one vector, one KSP) with the inactive dofs fixed at every step, and
   assembly and solve callable (and timed) separately;
 * :class:`MovingStokes`: Taylor–Hood Stokes flow around moving rigid bodies in a fixed
-  container, with the force and the torque on the bodies.
+  container, with the force and the torque on the bodies (assembled over the active cells).
 
 Why not plain ``LinearProblem.solve``: it does reassemble into the matrix it created (the
 sparsity stays valid on a moving domain) and its ``bcs`` may be replaced between solves,
@@ -39,7 +42,7 @@ from dolfinx.fem.petsc import LinearProblem
 if TYPE_CHECKING:
     from .moving import MovingDomain
 
-__all__ = ["MovingLinearProblem", "MovingStokes", "reassemble"]
+__all__ = ["ActiveForm", "MovingLinearProblem", "MovingStokes", "reassemble"]
 
 
 def reassemble(A, b, a: fem.Form, L: fem.Form, bcs: Sequence[fem.DirichletBC]) -> None:
@@ -61,6 +64,85 @@ def reassemble(A, b, a: fem.Form, L: fem.Form, bcs: Sequence[fem.DirichletBC]) -
     apply_lifting(b, [a], [bcs])
     b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
     set_bc(b, bcs)
+
+
+ACTIVE_ID = 2**30 - 17
+"""Subdomain id that :class:`ActiveForm` gives a form's cell integrals (an unlikely one)."""
+
+
+class ActiveForm:
+    """A form whose cell integrals are assembled over the active cells only, compiled once.
+
+    A cell integral whose integrand has the factor ``md.active`` vanishes on the inactive
+    cells, so it may skip them: the element tensors of the active cells, added in the same
+    order, are those of the whole background, less exact zeros. The UFL form is compiled
+    once with its cell integrals given the id :data:`ACTIVE_ID`
+    (:func:`dolfinx.fem.compile_form`); :meth:`step` makes the DOLFINx form of the current
+    active cells (:func:`dolfinx.fem.create_form`, no compilation), :attr:`full` the one of
+    every owned cell, whose sparsity pattern holds every step's.
+
+    Parameters
+    ----------
+    md
+        The moving domain.
+    form
+        A UFL form whose integrals all have the default subdomain (``dx``, ``ds``, ``dS``
+        without an id or data) and whose cell integrands all vanish where ``md.active`` does.
+    """
+
+    def __init__(self, md: MovingDomain, form: ufl.Form):
+        integrals = []
+        for itg in form.integrals():
+            if itg.subdomain_id() != "everywhere" or itg.subdomain_data() is not None:
+                raise ValueError(
+                    "an ActiveForm's integrals must have no subdomain id or data, got "
+                    f"{itg.integral_type()} integral {itg.subdomain_id()!r}"
+                )
+            if itg.integral_type() == "cell":
+                itg = itg.reconstruct(subdomain_id=ACTIVE_ID)
+            integrals.append(itg)
+        self.md = md
+        self.ufl_form = ufl.Form(integrals)
+        self.compiled = fem.compile_form(md.comm, self.ufl_form)
+        self._spaces = [arg.ufl_function_space() for arg in form.arguments()]
+        self._coefficients = {c: c for c in form.coefficients()}
+        self._constants = {c: c for c in ufl.algorithms.analysis.extract_constants(form)}
+        self.full = self._create(np.arange(md._nco, dtype=np.int32))
+
+    def _create(self, cells: npt.NDArray[np.int32]) -> fem.Form:
+        return fem.create_form(
+            self.compiled,
+            self._spaces,
+            self.md.mesh,
+            {fem.IntegralType.cell: [(ACTIVE_ID, cells)]},
+            self._coefficients,
+            self._constants,
+        )
+
+    def step(self) -> fem.Form:
+        """The form over the owned active cells of the current step."""
+        cells = self.md.active_cells
+        return self._create(np.ascontiguousarray(cells[cells < self.md._nco], dtype=np.int32))
+
+
+def _fill_pattern(A, form: ActiveForm) -> None:
+    """Set every entry of the sparsity pattern of ``A`` (the whole background's) to zero.
+
+    PETSc drops the preallocated entries that the first assembly leaves unset, so that the
+    active cells of a later step would have no place in ``A``; one assembly over every cell
+    of a cheap zero form (one quadrature point) keeps them all.
+    """
+    from dolfinx.fem.petsc import assemble_matrix
+
+    V0, V1 = (arg.ufl_function_space() for arg in form.ufl_form.arguments())
+    u, v = ufl.TrialFunction(V1), ufl.TestFunction(V0)
+    if u.ufl_shape == v.ufl_shape:
+        zero = fem.Constant(form.md.mesh, np.zeros((), dtype=PETSc.ScalarType))
+        dx = ufl.dx(domain=form.md.mesh, metadata={"quadrature_degree": 0})
+        assemble_matrix(A, fem.form(zero * ufl.inner(u, v) * dx))
+    else:  # the form itself, on every cell
+        assemble_matrix(A, form.full)
+    A.assemble()
 
 
 def _component(fn: Callable[[str], Any], i: int, side: str) -> Any:
@@ -87,6 +169,11 @@ class MovingLinearProblem(LinearProblem):
         As in :class:`dolfinx.fem.petsc.LinearProblem` (``u``: the solution function).
     symmetric
         Mark the matrix symmetric after each assembly (for ``pc_type: cholesky``).
+    active_only
+        Assemble the cell integrals over the active cells only (:class:`ActiveForm`): exact
+        when every cell integrand has the factor ``md.active`` (the others vanish there),
+        and cheaper by the inactive cells' share of the background. Needs UFL forms whose
+        integrals have no subdomain id or data.
     """
 
     def __init__(
@@ -99,17 +186,28 @@ class MovingLinearProblem(LinearProblem):
         petsc_options: dict | None = None,
         u: fem.Function | None = None,
         symmetric: bool = False,
+        active_only: bool = False,
     ):
         if isinstance(a, Sequence) or isinstance(L, Sequence):
             raise TypeError("MovingLinearProblem takes one bilinear and one linear form")
         if u is None and isinstance(L, fem.Form):  # LinearProblem reads it from a UFL form
             raise TypeError("give the solution function u with compiled forms")
+        self._active: tuple[ActiveForm, ActiveForm] | None = None
+        if active_only:
+            if not (isinstance(a, ufl.Form) and isinstance(L, ufl.Form)):
+                raise TypeError("active_only=True needs the UFL forms a and L")
+            if u is None:
+                u = fem.Function(L.arguments()[0].ufl_function_space())
+            self._active = ActiveForm(md, a), ActiveForm(md, L)
+            a, L = self._active[0].full, self._active[1].full
         super().__init__(
             a, L, petsc_options_prefix=petsc_options_prefix, petsc_options=petsc_options, u=u
         )
         self.md = md
         self.symmetric = symmetric
         self._zero = fem.Function(self.u.function_space)
+        if self._active is not None:
+            _fill_pattern(self.A, self._active[0])
 
     def __del__(self):
         """Leave the PETSc objects to petsc4py's collective garbage collection.
@@ -126,7 +224,11 @@ class MovingLinearProblem(LinearProblem):
         """
         inactive = fem.dirichletbc(self._zero, self.md.inactive_dofs(self.u.function_space))
         self.bcs = [inactive, *bcs]
-        reassemble(self.A, self.b, self.a, self.L, self.bcs)
+        if self._active is None:
+            a, L = self.a, self.L
+        else:
+            a, L = (form.step() for form in self._active)
+        reassemble(self.A, self.b, a, L, self.bcs)
         if self.symmetric:
             self.A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
 
@@ -176,7 +278,9 @@ class MovingStokes:
     pressure is pinned to zero at ``pressure_point``, a background vertex that stays in the
     fluid (the forces do not depend on this constant). The spaces, the forms (also those of
     the forces), the matrix and the solver are built once; each :meth:`solve` locates the
-    dofs on Gamma_h of the current step, reassembles and solves.
+    dofs on Gamma_h of the current step, reassembles and solves. The cell integrals are
+    assembled over the active cells only (:class:`ActiveForm`): the same matrix as over the
+    whole background, at the cost of the fluid's cells.
 
     Forces and torques on the bodies (about the origin; in 2D a scalar, positive
     counter-clockwise, in 3D a vector) come two ways; ``n`` is the fluid's outward normal,
@@ -243,10 +347,11 @@ class MovingStokes:
         """The solution ``(u_h, p_h)`` of the last :meth:`solve`."""
         self.problem = MovingLinearProblem(
             md,
-            fem.form(a),
-            fem.form(L),
+            a,
+            L,
             u=self.wh,
             symmetric=symmetric,
+            active_only=True,
             petsc_options_prefix=petsc_options_prefix,
             petsc_options=DIRECT if petsc_options is None else petsc_options,
         )
@@ -277,8 +382,9 @@ class MovingStokes:
         self._tests = [fem.Function(V) for _ in range(d + len(self._rotations))]
         uh, ph = ufl.split(self.wh)
         self._reaction = [
-            fem.form(
-                -chi * (2 * mu * ufl.inner(self.eps(uh), self.eps(w)) - ph * ufl.div(w)) * ufl.dx
+            ActiveForm(
+                md,
+                -chi * (2 * mu * ufl.inner(self.eps(uh), self.eps(w)) - ph * ufl.div(w)) * ufl.dx,
             )
             for w in self._tests
         ]
@@ -410,12 +516,12 @@ class MovingStokes:
 
     def force(self) -> npt.NDArray[np.float64]:
         """Fluid force on the bodies, ``(gdim,)``, from the weak residual (collective)."""
-        return self._sum(self._reaction[: self.gdim])
+        return self._sum([f.step() for f in self._reaction[: self.gdim]])
 
     def torque(self) -> Any:
         """Fluid torque on the bodies about the origin from the weak residual (collective):
         a float in 2D, ``(3,)`` in 3D."""
-        t = self._sum(self._reaction[self.gdim :])
+        t = self._sum([f.step() for f in self._reaction[self.gdim :]])
         return float(t[0]) if self.gdim == 2 else t
 
     def surface_force(self) -> npt.NDArray[np.float64]:

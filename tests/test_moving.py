@@ -311,6 +311,53 @@ def test_moving_linear_problem_equals_manual_reassembly():
             obj.destroy()
 
 
+@pytest.mark.mpi
+def test_active_only_assembly_equals_the_whole_background():
+    """``active_only=True`` assembles the cell integrals over the active cells only: the
+    same matrix and vector as over every cell (the indicator vanishes on the others),
+    also when a later step's domain holds cells outside every earlier one (their entries
+    must have kept their place in the matrix: PETSc drops the entries the first assembly
+    leaves unset). Both sum the same element tensors in the same cell order; the tolerance
+    (1e-13 of the largest entry) only allows the separately compiled kernels to round
+    differently."""
+    bg = du.equilateral_mesh(comm, [[-1.4, -1.4], [1.4, 1.4]], 0.12)
+    md = MovingDomain(bg, degree=2)
+    V = fem.functionspace(md.mesh, ("Lagrange", 2))
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    chi = md.active
+    a = chi * (ufl.inner(ufl.grad(u), ufl.grad(v)) + u * v) * ufl.dx
+    L = chi * fem.Constant(md.mesh, 1.0) * v * ufl.dx
+    opts = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"}
+    problems = [
+        MovingLinearProblem(
+            md, a, L, petsc_options_prefix=f"ao{flag}_", petsc_options=opts, active_only=flag
+        )
+        for flag in (False, True)
+    ]
+    for radius in (0.4, 1.1, 0.7):  # the second domain covers cells the first did not
+        md.update(du.Circle((0.05, -0.03), radius))
+        for problem in problems:
+            problem.assemble([fem.dirichletbc(fem.Function(V), md.immersed_dofs(V))])
+        (r0, c0, v0), (r1, c1, v1) = (p.A.getValuesCSR() for p in problems)  # owned rows
+        assert np.array_equal(r0, r1) and np.array_equal(c0, c1)
+        np.testing.assert_allclose(v1, v0, rtol=0, atol=1e-13 * np.abs(v0).max())
+        b0, b1 = (p.b.array for p in problems)
+        np.testing.assert_allclose(b1, b0, rtol=0, atol=1e-13 * np.abs(b0).max())
+    with pytest.raises(ValueError, match="no subdomain id"):
+        MovingLinearProblem(
+            md, a, chi * v * ufl.ds(1), petsc_options_prefix="ao_ds_", active_only=True
+        )
+    with pytest.raises(TypeError, match="UFL forms"):
+        MovingLinearProblem(
+            md,
+            fem.form(a),
+            fem.form(L),
+            petsc_options_prefix="ao_c_",
+            u=fem.Function(V),
+            active_only=True,
+        )
+
+
 def test_moving_stokes_rigid_translation_and_compiles_once():
     """A disc translating with the walls: the flow is the rigid translation, the force and
     torque vanish, and nothing is compiled after the first step."""
