@@ -107,7 +107,9 @@ class ActiveForm:
         self._spaces = [arg.ufl_function_space() for arg in form.arguments()]
         self._coefficients = {c: c for c in form.coefficients()}
         self._constants = {c: c for c in ufl.algorithms.analysis.extract_constants(form)}
-        self.full = self._create(np.arange(md._nco, dtype=np.int32))
+        topology = md.mesh.topology
+        self._num_owned = topology.index_map(topology.dim).size_local
+        self.full = self._create(np.arange(self._num_owned, dtype=np.int32))
 
     def _create(self, cells: npt.NDArray[np.int32]) -> fem.Form:
         return fem.create_form(
@@ -122,7 +124,17 @@ class ActiveForm:
     def step(self) -> fem.Form:
         """The form over the owned active cells of the current step."""
         cells = self.md.active_cells
-        return self._create(np.ascontiguousarray(cells[cells < self.md._nco], dtype=np.int32))
+        owned = cells[cells < self._num_owned]
+        return self._create(np.ascontiguousarray(owned, dtype=np.int32))
+
+    def create_matrix(self) -> PETSc.Mat:
+        """A matrix for every step's :meth:`step` form (bilinear forms): the sparsity of the
+        whole background, every entry stored (zero). Collective."""
+        from dolfinx.fem.petsc import create_matrix
+
+        A = create_matrix(self.full)
+        _fill_pattern(A, self)
+        return A
 
 
 def _fill_pattern(A, form: ActiveForm) -> None:
