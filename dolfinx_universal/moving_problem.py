@@ -26,7 +26,7 @@ objects and splits :meth:`~MovingLinearProblem.solve` in two.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from functools import partial
+from functools import cached_property, partial
 from typing import TYPE_CHECKING, Any
 
 from petsc4py import PETSc
@@ -88,9 +88,15 @@ class ActiveForm:
     form
         A UFL form whose integrals all have the default subdomain (``dx``, ``ds``, ``dS``
         without an id or data) and whose cell integrands all vanish where ``md.active`` does.
+    on_gamma
+        Its interior-facet integrands vanish off Gamma_h too (those of
+        :meth:`~dolfinx_universal.moving.MovingDomain.immersed_integral`): they run on the
+        facets of Gamma_h only. Otherwise interior and exterior facet integrals run on
+        every facet.
     """
 
-    def __init__(self, md: MovingDomain, form: ufl.Form):
+    def __init__(self, md: MovingDomain, form: ufl.Form, *, on_gamma: bool = False):
+        restricted = ("cell", "interior_facet") if on_gamma else ("cell",)
         integrals = []
         for itg in form.integrals():
             if itg.subdomain_id() != "everywhere" or itg.subdomain_data() is not None:
@@ -98,34 +104,55 @@ class ActiveForm:
                     "an ActiveForm's integrals must have no subdomain id or data, got "
                     f"{itg.integral_type()} integral {itg.subdomain_id()!r}"
                 )
-            if itg.integral_type() == "cell":
+            if itg.integral_type() in restricted:
                 itg = itg.reconstruct(subdomain_id=ACTIVE_ID)
             integrals.append(itg)
         self.md = md
+        self.on_gamma = on_gamma
         self.ufl_form = ufl.Form(integrals)
         self.compiled = fem.compile_form(md.comm, self.ufl_form)
         self._spaces = [arg.ufl_function_space() for arg in form.arguments()]
         self._coefficients = {c: c for c in form.coefficients()}
         self._constants = {c: c for c in ufl.algorithms.analysis.extract_constants(form)}
         topology = md.mesh.topology
-        self._num_owned = topology.index_map(topology.dim).size_local
-        self.full = self._create(np.arange(self._num_owned, dtype=np.int32))
+        tdim = topology.dim
+        self._num_owned = topology.index_map(tdim).size_local
+        if on_gamma:
+            topology.create_connectivity(tdim - 1, tdim)
+            topology.create_connectivity(tdim, tdim - 1)
 
-    def _create(self, cells: npt.NDArray[np.int32]) -> fem.Form:
+    @cached_property
+    def full(self) -> fem.Form:
+        """The form over every owned cell (and every interior facet, with ``on_gamma``)."""
+        topology = self.md.mesh.topology
+        facets = np.arange(topology.index_map(topology.dim - 1).size_local, dtype=np.int32)
+        return self._create(np.arange(self._num_owned, dtype=np.int32), facets)
+
+    def _create(self, cells: npt.NDArray[np.int32], facets: npt.NDArray[np.int32]) -> fem.Form:
+        domains = {fem.IntegralType.cell: [(ACTIVE_ID, cells)]}
+        if self.on_gamma:
+            pairs = fem.compute_integration_domains(
+                fem.IntegralType.interior_facet, self.md.mesh.topology, facets
+            )
+            domains[fem.IntegralType.interior_facet] = [(ACTIVE_ID, np.asarray(pairs))]
         return fem.create_form(
             self.compiled,
             self._spaces,
             self.md.mesh,
-            {fem.IntegralType.cell: [(ACTIVE_ID, cells)]},
+            domains,
             self._coefficients,
             self._constants,
         )
 
     def step(self) -> fem.Form:
-        """The form over the owned active cells of the current step."""
+        """The form over the owned active cells of the current step (and the owned facets of
+        Gamma_h, with ``on_gamma``)."""
         cells = self.md.active_cells
         owned = cells[cells < self._num_owned]
-        return self._create(np.ascontiguousarray(owned, dtype=np.int32))
+        return self._create(
+            np.ascontiguousarray(owned, dtype=np.int32),
+            np.ascontiguousarray(self.md.immersed_facets, dtype=np.int32),
+        )
 
     def create_matrix(self) -> PETSc.Mat:
         """A matrix for every step's :meth:`step` form (bilinear forms): the sparsity of the
@@ -414,13 +441,15 @@ class MovingStokes:
             return ufl.cross(y, t)
 
         self._surface = [
-            fem.form(md.immersed_integral(partial(_component, traction, i))) for i in range(d)
+            ActiveForm(md, md.immersed_integral(partial(_component, traction, i)), on_gamma=True)
+            for i in range(d)
         ]
         if d == 2:
-            self._surface.append(fem.form(md.immersed_integral(moment)))
+            self._surface.append(ActiveForm(md, md.immersed_integral(moment), on_gamma=True))
         else:
             self._surface += [
-                fem.form(md.immersed_integral(partial(_component, moment, i))) for i in range(3)
+                ActiveForm(md, md.immersed_integral(partial(_component, moment, i)), on_gamma=True)
+                for i in range(3)
             ]
         self.body_dofs: list[npt.NDArray[np.int32]] = [np.empty(0, np.int32)] * 2
         """``[dofs of W, dofs of V]`` of the velocity on the bodies at the last solve."""
@@ -538,12 +567,12 @@ class MovingStokes:
 
     def surface_force(self) -> npt.NDArray[np.float64]:
         """Fluid force on Gamma_h, ``(gdim,)``: ``-int_Gamma_h sigma n ds`` (collective)."""
-        return self._sum(self._surface[: self.gdim])
+        return self._sum([f.step() for f in self._surface[: self.gdim]])
 
     def surface_torque(self) -> Any:
         """Fluid torque about the origin, ``int_Gamma_h x x (sigma nu) ds`` (collective):
         a float in 2D, ``(3,)`` in 3D."""
-        t = self._sum(self._surface[self.gdim :])
+        t = self._sum([f.step() for f in self._surface[self.gdim :]])
         return float(t[0]) if self.gdim == 2 else t
 
 

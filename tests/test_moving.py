@@ -17,7 +17,12 @@ from jit_counter import count_jit_compilations
 
 import dolfinx_universal as du
 from dolfinx_universal.moving import MovingDomain, StepReport
-from dolfinx_universal.moving_problem import MovingLinearProblem, MovingStokes, reassemble
+from dolfinx_universal.moving_problem import (
+    ActiveForm,
+    MovingLinearProblem,
+    MovingStokes,
+    reassemble,
+)
 
 comm = MPI.COMM_WORLD
 
@@ -334,8 +339,19 @@ def test_active_only_assembly_equals_the_whole_background():
         )
         for flag in (False, True)
     ]
+    # A surface integral over Gamma_h (interior facets) and a volume one.
+    x = ufl.SpatialCoordinate(md.mesh)
+    surface = md.immersed_integral(lambda side: (x[0] + 2 * x[1] ** 2)(side))
+    volume = chi * x[0] ** 2 * ufl.dx
+    scalars = [(fem.form(surface), ActiveForm(md, surface, on_gamma=True))]
+    scalars.append((fem.form(volume), ActiveForm(md, volume)))
     for radius in (0.4, 1.1, 0.7):  # the second domain covers cells the first did not
         md.update(du.Circle((0.05, -0.03), radius))
+        for whole, active in scalars:
+            value = comm.allreduce(fem.assemble_scalar(whole))
+            assert comm.allreduce(fem.assemble_scalar(active.step())) == pytest.approx(
+                value, rel=1e-13
+            )
         for problem in problems:
             problem.assemble([fem.dirichletbc(fem.Function(V), md.immersed_dofs(V))])
         (r0, c0, v0), (r1, c1, v1) = (p.A.getValuesCSR() for p in problems)  # owned rows
