@@ -38,6 +38,7 @@ import ufl
 from dolfinx import fem
 from dolfinx import mesh as dmesh
 from dolfinx.fem.petsc import LinearProblem
+from ufl.algorithms import extract_coefficients
 
 if TYPE_CHECKING:
     from .moving import MovingDomain
@@ -87,7 +88,8 @@ class ActiveForm:
         The moving domain.
     form
         A UFL form whose integrals all have the default subdomain (``dx``, ``ds``, ``dS``
-        without an id or data) and whose cell integrands all vanish where ``md.active`` does.
+        without an id or data) and whose cell integrands all vanish where ``md.active`` does
+        (a factor ``md.active``; an integrand without it is an error).
     on_gamma
         Its interior-facet integrands vanish off Gamma_h too (those of
         :meth:`~dolfinx_universal.moving.MovingDomain.immersed_integral`): they run on the
@@ -105,6 +107,11 @@ class ActiveForm:
                     f"{itg.integral_type()} integral {itg.subdomain_id()!r}"
                 )
             if itg.integral_type() in restricted:
+                if md.active not in extract_coefficients(itg.integrand()):
+                    raise ValueError(
+                        f"an ActiveForm's {itg.integral_type()} integrand must carry the "
+                        "indicator md.active (it is assembled where md.active is 1 only)"
+                    )
                 itg = itg.reconstruct(subdomain_id=ACTIVE_ID)
             integrals.append(itg)
         self.md = md

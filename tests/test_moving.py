@@ -359,6 +359,10 @@ def test_active_only_assembly_equals_the_whole_background():
         np.testing.assert_allclose(v1, v0, rtol=0, atol=1e-13 * np.abs(v0).max())
         b0, b1 = (p.b.array for p in problems)
         np.testing.assert_allclose(b1, b0, rtol=0, atol=1e-13 * np.abs(b0).max())
+    with pytest.raises(ValueError, match="must carry the indicator"):
+        ActiveForm(md, u * v * ufl.dx)  # nonzero outside the domain: may not skip cells
+    with pytest.raises(ValueError, match="must carry the indicator"):
+        ActiveForm(md, (x[0] * v)("+") * ufl.dS, on_gamma=True)
     with pytest.raises(ValueError, match="no subdomain id"):
         MovingLinearProblem(
             md, a, chi * v * ufl.ds(1), petsc_options_prefix="ao_ds_", active_only=True
