@@ -374,7 +374,7 @@ class Ellipsoid(Surface):
                 un = ua + H * (np.sqrt(H) - 1) / H1  # Newton on H^(-1/2) - 1
                 geo = (la > 0) & (ha > 2 * la)
                 mid = np.where(geo, np.sqrt(la * ha), 0.5 * (la + ha))
-                un = np.where((un > la) & (un < ha), un, mid)
+                un = np.where((un >= la) & (un <= ha), un, mid)  # converged: un = ua
                 un = np.where(H == 1, ua, un)
                 u[act] = un
                 act = act[(np.abs(un - ua) > 4 * _EPS * un) & (ha - la > 4 * _EPS * ha)]
