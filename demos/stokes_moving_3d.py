@@ -945,9 +945,9 @@ def main(argv: Sequence[str] | None = None) -> dict:
 # | 5 | 5.5360 | $-1.3913531610592$ | $-1.3924416200203$ |
 #
 # The half-turn gap $|T_z(\theta_k + \pi) - T_z(\theta_k)| / |T_z(\theta_k)|$ for $k = 0,
-# 1, 2$: with the relaxation $6.4 \cdot 10^{-16}$, $3.2 \cdot 10^{-15}$,
-# $4.6 \cdot 10^{-15}$, without it $1.4 \cdot 10^{-15}$, $3.2 \cdot 10^{-16}$,
-# $1.2 \cdot 10^{-14}$ (the whole torque vector, half-turned: the same), far below
+# 1, 2$: with the relaxation $9.6 \cdot 10^{-16}$, $2.9 \cdot 10^{-15}$,
+# $5.1 \cdot 10^{-15}$, without it $9.6 \cdot 10^{-16}$, $8.0 \cdot 10^{-16}$,
+# $1.3 \cdot 10^{-14}$ (the whole torque vector, half-turned: the same), far below
 # $10^{-6}$: the conforming map, the relaxation and the curved map are equivariant under
 # the half turn, the conformed meshes at $\theta$ and $\theta + \pi$ are images of each
 # other and the two discrete problems differ by the numbering of their unknowns; what
@@ -963,16 +963,20 @@ def main(argv: Sequence[str] | None = None) -> dict:
 # for itself in quality: dihedral angles 33.7–118.0 degrees against 14.2–151.8 without it
 # (minimum Jacobian ratios of the curved tetrahedra 0.40 and 0.43).
 #
-# **Timings.** No step's update takes more than 9.0 % of its assembly and solve: on the
+# **Timings.** No step's update takes more than 7.6 % of its assembly and solve: on the
 # motion of (a) the update takes 0.7 s against 12.6 s of assembly and 115 s of solve
-# (0.6 %), on (b) 0.18–0.19 s with the relaxation and 0.04–0.05 s without, against
-# 2.0–2.4 s. Nothing is compiled during the steps (`tests/test_stokes_moving_3d.py`).
-# `MovingStokes` and the preconditioner assemble over the fluid's cells only: the cells
-# inside the body and outside the container (41 % of the cells of (a), 84 % of (b)) no
-# longer run the kernels. Before, the assembly took 24–29 s per step of (a), assembly and
-# solve together 5.2–5.6 s on (b), and the update's largest share was 4.4 %: it is 9.0 %
-# now because the assembly it is measured against got cheaper, not the update dearer. The
+# (0.6 %), on (b) 0.11–0.14 s with the relaxation (the first step's 0.14 s includes
+# set-up) and 0.03 s without, against 1.7–1.9 s (of which 1.15–1.23 s the solve itself:
+# the relaxed update is 9–11 % of it). Nothing is compiled during the steps
+# (`tests/test_stokes_moving_3d.py`). `MovingStokes` and the preconditioner assemble over
+# the fluid's cells only: the cells inside the body and outside the container (41 % of
+# the cells of (a), 84 % of (b)) no longer run the kernels. Before, the assembly took
+# 24–29 s per step of (a), assembly and solve together 5.2–5.6 s on (b), and the update's
+# largest share was 4.4 %; the ellipsoid's closest points had been 4 times dearer (their
+# Newton method bisected after converging), the relaxed update of (b) 0.18–0.19 s. The
 # solve of (a) is dominated by the FGMRES iterations on $6.5 \cdot 10^5$ unknowns.
+# Timings of (b) from a rerun of (b) alone, after both changes; those of (a) from the
+# full run.
 
 
 # +
