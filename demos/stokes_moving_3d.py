@@ -358,7 +358,8 @@ def rotation_pin(background: dmesh.Mesh) -> np.ndarray:
 # compiled once (an `ActiveForm`) and assembled at every step over the fluid's cells
 # into one matrix, with the conditions of
 # `MovingStokes` (their rows are the identity in both). `MovingStokes` takes solver
-# options but neither a preconditioner matrix nor a restriction to the fluid, so its
+# options and restricts its own solve to the fluid's unknowns where they are at most
+# half of all (`restrict_to_active`), but it takes no preconditioner matrix, so its
 # `solve_assembled` is replaced here by `Solver.solve`, which uses its assembled matrix,
 # vector and conditions.
 
