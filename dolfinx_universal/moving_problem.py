@@ -384,7 +384,9 @@ class MovingStokes:
     the forces), the matrix and the solver are built once; each :meth:`solve` locates the
     dofs on Gamma_h of the current step, reassembles and solves. The cell integrals are
     assembled over the active cells only (:class:`ActiveForm`): the same matrix as over the
-    whole background, at the cost of the fluid's cells.
+    whole background, at the cost of the fluid's cells; and the solve takes the submatrix
+    of the active unknowns where they are at most half of all
+    (``MovingLinearProblem(restrict_to_active=None)``).
 
     Forces and torques on the bodies (about the origin; in 2D a scalar, positive
     counter-clockwise, in 3D a vector) come two ways; ``n`` is the fluid's outward normal,
