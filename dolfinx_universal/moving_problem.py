@@ -312,9 +312,10 @@ class MovingLinearProblem(LinearProblem):
         u = self.u.x.petsc_vec
         V = self.u.function_space
         imap, bs = V.dofmap.index_map, V.dofmap.index_map_bs
-        keep = np.ones(imap.size_local, dtype=bool)
-        keep[self._inactive[self._inactive < imap.size_local]] = False
         restrict = self.restrict_to_active
+        if restrict is not False:  # the owned unknowns of the active cells
+            keep = np.ones(imap.size_local, dtype=bool)
+            keep[self._inactive[self._inactive < imap.size_local]] = False
         if restrict is None:  # where the active unknowns are at most half of them
             active = self.md.comm.allreduce(int(np.count_nonzero(keep)))
             restrict = active <= RESTRICT_SHARE * imap.size_global
