@@ -41,6 +41,7 @@ __all__ = [
     "A15_SITES",
     "A15_TETS",
     "a15_mesh",
+    "a15_num_cells",
     "a15_tetrahedralisation",
     "bcc_mesh",
     "bcc_tetrahedralisation",
@@ -435,6 +436,11 @@ def a15_tetrahedralisation(box: npt.ArrayLike, h: float) -> tuple[Float, Int]:
         Vertex indices of each tetrahedron (positive signed volume), shape ``(num_cells, 4)``.
     """
     return _a15_part(_a15_layout(box, h), 0, 1)
+
+
+def a15_num_cells(box: npt.ArrayLike, h: float) -> int:
+    """Number of tetrahedra of :func:`a15_mesh` ``(comm, box, h)``, without building it."""
+    return len(A15_TETS) * int(np.prod(_a15_layout(box, h).n))
 
 
 def a15_mesh(comm: MPI.Comm, box: Sequence[Sequence[float]], h: float) -> dmesh.Mesh:

@@ -928,9 +928,9 @@ class _UniformPlan(_Plan):
 
     def count(self) -> int:
         """Tetrahedra of the background."""
-        from .background_tet import A15_TETS, _a15_layout
+        from .background_tet import a15_num_cells
 
-        return len(A15_TETS) * int(np.prod(_a15_layout(self.box, self.size).n))
+        return a15_num_cells(self.box, self.size)
 
     def sizes(self) -> Float:
         return np.full(len(self.points), self.size)
@@ -1028,16 +1028,16 @@ class _GradedTetPlan(_Plan):
         user_size = None if user is None else _UserSize(comm, user, np.zeros((2, 3)))
 
         def sizing() -> _GradedTetPlan:
-            from .sizing_3d import _area, _components, surface_feature_size
+            from .sizing_3d import component_boundaries, surface_area, surface_feature_size
 
             check_components(boundary)
             sf = surface_feature_size(boundary, 0.25 * h)
             target = target_sizes(sf.feature, h, degree, size_factor)
-            comps = _components(boundary)
+            comps = component_boundaries(boundary)
             if user_size is not None:  # a uniform band: the field's smallest on the component
                 target = np.minimum(target, user_size(sf.points))
             sizes = np.array([target[sf.labels == k].min() for k in range(len(comps))])
-            areas = np.array([_area(c) for c in comps])
+            areas = np.array([surface_area(c) for c in comps])
             rho = np.full(len(sf.points), float(boundary.min_radius_of_curvature()))
             band = relaxation_factor + 2.0
             plan = cls(
@@ -1065,9 +1065,9 @@ class _GradedTetPlan(_Plan):
         """Sample each component about one size apart and lower each component's size to
         what the other components' fields reach in its band (until no component changes):
         no level change of the octree in any component's band."""
-        from .sizing_3d import _components
+        from .sizing_3d import component_boundaries
 
-        comps = _components(boundary)
+        comps = component_boundaries(boundary)
         comps_i = range(len(comps))
         feature = [
             (self.points[self.labels == k], self.normals[self.labels == k], self.spacing)

@@ -40,9 +40,11 @@ from .boundaries import Boundary, Domain, RigidMotion
 
 __all__ = [
     "SurfaceFeature",
+    "component_boundaries",
     "sample_nearest",
     "shrinking_ball_radii",
     "surface_feature_size",
+    "surface_area",
     "surface_nearest",
     "surface_samples",
 ]
@@ -84,7 +86,9 @@ class SurfaceFeature:
     """Cap of the radii: the diagonal of the bounding box of Gamma."""
 
 
-def _components(boundary: Boundary) -> list[Boundary]:
+def component_boundaries(boundary: Boundary) -> list[Boundary]:
+    """The components of a :class:`~dolfinx_universal.boundaries.Domain` (container first),
+    or ``[boundary]``."""
     if isinstance(boundary, Domain):
         return [b for b, _ in boundary.components]
     return [boundary]
@@ -95,7 +99,7 @@ def _searched(boundary: Boundary) -> bool:
     (:class:`~dolfinx_universal.surfaces.ImplicitSurface`, also under a rigid motion)."""
     from .surfaces import ImplicitSurface
 
-    for comp in _components(boundary):
+    for comp in component_boundaries(boundary):
         while isinstance(comp, RigidMotion):
             comp = comp.base
         if isinstance(comp, Domain):
@@ -106,7 +110,7 @@ def _searched(boundary: Boundary) -> bool:
     return False
 
 
-def _area(surface: Boundary) -> float:
+def surface_area(surface: Boundary) -> float:
     """Area of a surface: its own (``area()``, else ``_measure()``) where it has one, else
     that of its bounding box (an overestimate for convex surfaces: denser samples)."""
     for name in ("area", "_measure"):
@@ -139,8 +143,8 @@ def surface_samples(boundary: Boundary, spacing: float) -> tuple[Float, Float, I
     if int(getattr(boundary, "gdim", 2)) != 3:
         raise ValueError("surface_samples needs a surface (gdim = 3); use sizing.feature_size")
     parts, labels = [], []
-    for k, comp in enumerate(_components(boundary)):
-        n = max(int(np.ceil(_area(comp) / spacing**2)), 4)
+    for k, comp in enumerate(component_boundaries(boundary)):
+        n = max(int(np.ceil(surface_area(comp) / spacing**2)), 4)
         pts = np.asarray(comp.sample(n), dtype=np.float64).reshape(-1, 3)
         parts.append(pts)
         labels.append(np.full(len(pts), k, dtype=np.intp))
