@@ -116,7 +116,6 @@
 # +
 from __future__ import annotations
 
-import itertools
 import sys
 import time
 from collections.abc import Sequence
@@ -124,17 +123,14 @@ from pathlib import Path
 from typing import Any
 
 from mpi4py import MPI
-from petsc4py import PETSc
 
 import numpy as np
-import ufl
 from dolfinx import mesh as dmesh
-from dolfinx.fem.petsc import assemble_matrix
 
 import dolfinx_universal as du
 from dolfinx_universal.demo_support import demo_options, log, write_summary
 from dolfinx_universal.moving import MovingDomain, StepReport
-from dolfinx_universal.moving_problem import ActiveForm, MovingStokes
+from dolfinx_universal.moving_problem import DIRECT, ITERATIVE, MovingStokes
 from dolfinx_universal.plotting import plot_tetrahedra, save
 
 B = 1.0  # container radius
@@ -345,7 +341,8 @@ def rotation_pin(background: dmesh.Mesh) -> np.ndarray:
 # factorisation of the saddle point system, with one algebraic multigrid cycle (PETSc's
 # GAMG, Chebyshev–Jacobi smoothing) for the velocity block and the Jacobi iteration of the
 # scaled pressure mass matrix for the Schur complement (`pc_fieldsplit_type schur`,
-# `schur_precondition a11`). (Direct factorisation is out of reach at these sizes on one
+# `schur_precondition a11`; the package's `ITERATIVE` options). (Direct factorisation is
+# out of reach at these sizes on one
 # core: for the whole matrix of a background of leaf side 0.1, $5.8 \cdot 10^5$
 # unknowns, MUMPS estimated $3 \cdot 10^9$ entries in the factors and $3 \cdot 10^{13}$
 # operations.) The multigrid works on the blocks of the preconditioner matrix
@@ -354,115 +351,25 @@ def rotation_pin(background: dmesh.Mesh) -> np.ndarray:
 #
 # the vector Laplacian (equivalent to the symmetric gradient on velocities that vanish on
 # the walls: Korn) and minus the scaled pressure mass matrix, spectrally equivalent to the
-# Schur complement $-B A^{-1} B^T$ (negative definite). $P$ changes with the geometry too: it is
-# compiled once (an `ActiveForm`) and assembled at every step over the fluid's cells
-# into one matrix, with the conditions of
-# `MovingStokes` (their rows are the identity in both). `MovingStokes` takes solver
-# options and restricts its own solve to the fluid's unknowns where they are at most
-# half of all (`restrict_to_active`), but it takes no preconditioner matrix, so its
-# `solve_assembled` is replaced here by `Solver.solve`, which uses its assembled matrix,
-# vector and conditions.
+# Schur complement $-B A^{-1} B^T$ (negative definite). $P$ changes with the geometry too:
+# `MovingStokes(..., preconditioner=True)` compiles it once and assembles it at every
+# step over the fluid's cells, with the same conditions (their rows are the identity in
+# both), and gives the PC the fields `u` and `p` in the numbering of the submatrix
+# (`restrict_to_active=True`: a Krylov method gains from the submatrix at any share of
+# fluid unknowns). The solver is chosen at each step from the number of fluid unknowns
+# (`set_petsc_options` when it changes; $P$ is assembled for FGMRES only, in the timed
+# assembly).
 
 # +
 LU_MAX = 100_000  # unknowns in the fluid: MUMPS up to this many, FGMRES above
-DIRECT = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"}
-ITERATIVE = {
-    "ksp_type": "fgmres",
-    "ksp_gmres_restart": 200,
-    "ksp_rtol": 1e-10,
-    "ksp_atol": 0.0,
-    "ksp_max_it": 1000,
-    "pc_type": "fieldsplit",
-    "pc_fieldsplit_type": "schur",
-    "pc_fieldsplit_schur_fact_type": "upper",
-    "pc_fieldsplit_schur_precondition": "a11",
-    "fieldsplit_u_ksp_type": "preonly",
-    "fieldsplit_u_pc_type": "gamg",
-    "fieldsplit_u_pc_gamg_threshold": 0.02,
-    "fieldsplit_u_mg_levels_ksp_type": "chebyshev",
-    "fieldsplit_u_mg_levels_pc_type": "jacobi",
-    "fieldsplit_p_ksp_type": "preonly",
-    "fieldsplit_p_pc_type": "jacobi",
-}
 
 
-class Solver:
-    """The solve of a :class:`MovingStokes`'s assembled system, restricted to the fluid."""
-
-    _count = itertools.count()  # distinct PETSc option prefixes
-
-    def __init__(self, stokes: MovingStokes):
-        self.stokes = stokes
-        W, mu = stokes.W, stokes.mu
-        (u, p), (v, q) = ufl.TrialFunctions(W), ufl.TestFunctions(W)
-        chi = stokes.md.active
-        a = chi * (mu * ufl.inner(ufl.grad(u), ufl.grad(v)) - p * q / mu) * ufl.dx
-        self.form = ActiveForm(stokes.md, a)  # assembled over the fluid's cells only
-        self.P = self.form.create_matrix()
-        imap = W.dofmap.index_map
-        assert W.dofmap.index_map_bs == 1  # a mixed space: one index per unknown
-        self.owned, self.start = imap.size_local, imap.local_range[0]
-        velocity = np.asarray(W.sub(0).collapse()[1])
-        self.velocity = np.zeros(self.owned, dtype=bool)
-        self.velocity[velocity[velocity < self.owned]] = True
-        self.prefix = f"sm3d_{next(Solver._count)}_"
-
-    def _index_set(self, local: np.ndarray) -> PETSc.IS:
-        comm = self.stokes.md.comm
-        return PETSc.IS().createGeneral(local.astype(PETSc.IntType), comm=comm)
-
-    def solve(self) -> tuple[int, int, str]:
-        """Solve the system of the last ``stokes.assemble`` into ``stokes.wh``; the number of
-        unknowns in the fluid, of iterations, and the solver's kind (collective)."""
-        problem, md = self.stokes.problem, self.stokes.md
-        comm = md.comm
-        inactive = md.inactive_dofs(self.stokes.W)
-        fluid = np.ones(self.owned, dtype=bool)
-        fluid[inactive[inactive < self.owned]] = False
-        local = np.flatnonzero(fluid)
-        n = comm.allreduce(len(local))
-        kind = "direct" if n <= LU_MAX else "iterative"
-        rows = self._index_set(local + self.start)
-        A = problem.A.createSubMatrix(rows, rows)
-        b = problem.b.getSubVector(rows)
-        rhs = b.copy()
-        problem.b.restoreSubVector(rows, b)
-        x = rhs.duplicate()
-        ksp = PETSc.KSP().create(comm)
-        ksp.setOptionsPrefix(self.prefix)
-        options, values = PETSc.Options(), DIRECT if kind == "direct" else ITERATIVE
-        for key, value in values.items():  # read by the set-up in ksp.solve, then removed
-            options[self.prefix + key] = value
-        matrices = [A]
-        if kind == "direct":
-            ksp.setOperators(A)
-            ksp.setFromOptions()
-        else:
-            self.P.zeroEntries()
-            assemble_matrix(self.P, self.form.step(), bcs=problem.bcs)
-            self.P.assemble()
-            matrices.append(self.P.createSubMatrix(rows, rows))
-            ksp.setOperators(A, matrices[1])
-            ksp.setFromOptions()
-            first = comm.exscan(len(local)) or 0  # the submatrix's numbering
-            at = first + np.arange(len(local))
-            velocity = self.velocity[local]
-            ksp.getPC().setFieldSplitIS(
-                ("u", self._index_set(at[velocity])), ("p", self._index_set(at[~velocity]))
-            )
-        ksp.solve(rhs, x)
-        reason, iterations = ksp.getConvergedReason(), ksp.getIterationNumber()
-        for key in values:
-            options.delValue(self.prefix + key)
-        if reason <= 0:
-            raise RuntimeError(f"the Stokes solve did not converge (KSP reason {reason})")
-        u = problem.u.x.petsc_vec
-        u.set(0.0)  # the unknowns outside the fluid
-        u.isaxpy(rows, 1.0, x)
-        problem.u.x.scatter_forward()
-        for obj in (ksp, x, rhs, rows, *matrices):
-            obj.destroy()
-        return n, iterations, kind
+def fluid_unknowns(stokes: MovingStokes) -> int:
+    """The unknowns of the current step's fluid cells, over the ranks (collective)."""
+    imap = stokes.W.dofmap.index_map
+    inactive = stokes.md.inactive_dofs(stokes.W)
+    owned = imap.size_local - np.count_nonzero(inactive < imap.size_local)
+    return stokes.md.comm.allreduce(int(owned))
 
 
 # -
@@ -484,8 +391,10 @@ class Moving:
 
     def __init__(self, background: dmesh.Mesh, pin, **options: Any):
         self.md = MovingDomain(background, degree=DEGREE, map=MAP, **options)
-        self.stokes = MovingStokes(self.md, MU, pin(background))
-        self.solver = Solver(self.stokes)
+        self.stokes = MovingStokes(
+            self.md, MU, pin(background), preconditioner=True, restrict_to_active=True
+        )
+        self.kind = "iterative"  # MovingStokes's options with its preconditioner: ITERATIVE
         W = self.stokes.W
         self.dofs = W.dofmap.index_map.size_global * W.dofmap.index_map_bs
         self.cells = background.topology.index_map(3).size_global
@@ -495,10 +404,18 @@ class Moving:
         (``boundary_velocity``, ``angular_velocity``); the force, torque and timings."""
         comm = self.md.comm
         report: StepReport = self.md.update(du.Domain(CONTAINER, [body]))
+        unknowns = fluid_unknowns(self.stokes)
+        kind = "direct" if unknowns <= LU_MAX else "iterative"
+        if kind != self.kind:  # (P is assembled for the iterative solver only)
+            iterative = kind == "iterative"
+            options = ITERATIVE if iterative else DIRECT
+            self.stokes.problem.set_petsc_options(options, precondition=iterative)
+            self.kind = kind
         t0 = time.perf_counter()
         self.stokes.assemble(**velocity)
         t1 = time.perf_counter()
-        unknowns, iterations, kind = self.solver.solve()
+        self.stokes.solve_assembled()
+        iterations = self.stokes.problem.solver.getIterationNumber()
         t2 = time.perf_counter()
         q = report.quality
         return {
@@ -895,8 +812,9 @@ def main(argv: Sequence[str] | None = None) -> dict:
 #
 # ## Results
 #
-# The full run, 758 s on one core (on 2026-12-03, on a machine state about a third slower
-# than that of the earlier runs), all checks passed.
+# The full run, 728 s on one core (on 2026-12-03, in the evening, after the solver moved
+# into `MovingStokes`: the preconditioner matrix $P$ is now assembled in the timed
+# assembly, before in the solve), all checks passed.
 #
 # **(a)** The motion on the background of leaf side $h_b = 0.05$ ($h_w = 0.1$ at the
 # container): 258 488 tetrahedra, 1 110 968 unknowns on the background, about 653 000 in
@@ -905,11 +823,11 @@ def main(argv: Sequence[str] | None = None) -> dict:
 #
 # | $s$ | drag $D$ | $D / (6 \pi \mu a U)$ | lateral force / $D$ | update | assemble | solve |
 # |---|---|---|---|---|---|---|
-# | $-0.2$ | 15.369550 | 2.717933 | 2.6e-7 | 0.76 | 12.2 | 117.0 |
-# | $-0.1$ | 14.740996 | 2.606780 | 1.0e-7 | 0.72 | 12.6 | 114.1 |
-# | $0$ | 14.548813 | 2.572795 | 6.0e-8 | 0.74 | 12.8 | 89.9 |
-# | $0.1$ | 14.741000 | 2.606781 | 3.1e-8 | 0.73 | 12.7 | 114.9 |
-# | $0.2$ | 15.369546 | 2.717932 | 3.4e-7 | 0.73 | 12.4 | 114.6 |
+# | $-0.2$ | 15.369550 | 2.717933 | 2.6e-7 | 0.72 | 19.5 | 106.8 |
+# | $-0.1$ | 14.740996 | 2.606780 | 1.0e-7 | 0.73 | 20.1 | 100.1 |
+# | $0$ | 14.548813 | 2.572795 | 6.0e-8 | 0.67 | 19.7 | 77.3 |
+# | $0.1$ | 14.741000 | 2.606781 | 3.1e-8 | 0.67 | 19.7 | 99.1 |
+# | $0.2$ | 15.369546 | 2.717932 | 3.4e-7 | 0.66 | 20.1 | 101.3 |
 #
 # At the centre the closed form is $D = 14.547926$ ($K = 2.5726381$): the computed drag
 # is $6.1 \cdot 10^{-5}$ above it. Off the centre the drag grows towards the wall (by
@@ -964,11 +882,11 @@ def main(argv: Sequence[str] | None = None) -> dict:
 # for itself in quality: dihedral angles 33.7–118.0 degrees against 14.2–151.8 without it
 # (minimum Jacobian ratios of the curved tetrahedra 0.40 and 0.43).
 #
-# **Timings.** No step's update takes more than 7.6 % of its assembly and solve: on the
-# motion of (a) the update takes 0.7 s against 12.6 s of assembly and 115 s of solve
-# (0.6 %), on (b) 0.11–0.14 s with the relaxation (the first step's 0.14 s includes
-# set-up) and 0.03 s without, against 1.7–1.9 s (of which 1.15–1.23 s the solve itself:
-# the relaxed update is 9–11 % of it). Nothing is compiled during the steps
+# **Timings.** No step's update takes more than 6.4 % of its assembly and solve: on the
+# motion of (a) the update takes 0.7 s against 20 s of assembly (the system and $P$) and
+# 77–107 s of solve (0.6 %), on (b) 0.12–0.13 s with the relaxation and 0.04 s without,
+# against 2.0–2.2 s (of which 1.41–1.50 s the solve itself: the relaxed update is 9 % of
+# it). Nothing is compiled during the steps
 # (`tests/test_stokes_moving_3d.py`). `MovingStokes` and the preconditioner assemble over
 # the fluid's cells only: the cells inside the body and outside the container (41 % of
 # the cells of (a), 84 % of (b)) no longer run the kernels. Before, the assembly took
@@ -976,8 +894,6 @@ def main(argv: Sequence[str] | None = None) -> dict:
 # largest share was 4.4 %; the ellipsoid's closest points had been 4 times dearer (their
 # Newton method bisected after converging), the relaxed update of (b) 0.18–0.19 s. The
 # solve of (a) is dominated by the FGMRES iterations on $6.5 \cdot 10^5$ unknowns.
-# Timings of (b) from a rerun of (b) alone, after both changes; those of (a) from the
-# full run.
 
 
 # +

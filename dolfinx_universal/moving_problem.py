@@ -25,10 +25,12 @@ objects and splits :meth:`~MovingLinearProblem.solve` in two.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from functools import cached_property, partial
 from typing import TYPE_CHECKING, Any
 
+from mpi4py import MPI
 from petsc4py import PETSc
 
 import basix.ufl
@@ -43,7 +45,7 @@ from ufl.algorithms import extract_coefficients
 if TYPE_CHECKING:
     from .moving import MovingDomain
 
-__all__ = ["ActiveForm", "MovingLinearProblem", "MovingStokes", "reassemble"]
+__all__ = ["DIRECT", "ITERATIVE", "ActiveForm", "MovingLinearProblem", "MovingStokes", "reassemble"]
 
 
 def reassemble(A, b, a: fem.Form, L: fem.Form, bcs: Sequence[fem.DirichletBC]) -> None:
@@ -221,6 +223,18 @@ class MovingLinearProblem(LinearProblem):
         Bilinear and linear forms (UFL or compiled; one block).
     petsc_options_prefix, petsc_options, u
         As in :class:`dolfinx.fem.petsc.LinearProblem` (``u``: the solution function).
+    P
+        A bilinear form whose matrix preconditions the KSP (as in
+        :class:`~dolfinx.fem.petsc.LinearProblem`), assembled with the same conditions at
+        every :meth:`assemble` (over the active cells with ``active_only``) into
+        :attr:`P_mat`, and restricted with the system where it is; while
+        :attr:`precondition` is False it is neither assembled nor used (a direct solver
+        factorises the preconditioning matrix).
+    fields
+        Named fields for ``pc_type: fieldsplit``: ``(name, unknowns)`` pairs, ``unknowns``
+        the process-local indices of owned unknowns (``block * bs + component``) of each
+        field. They are given to the PC in the numbering of the matrix solved (the whole
+        one or the submatrix of the active unknowns). Other PC types ignore them.
     symmetric
         Mark the matrix symmetric after each assembly (for ``pc_type: cholesky``).
     active_only
@@ -245,25 +259,37 @@ class MovingLinearProblem(LinearProblem):
         petsc_options_prefix: str,
         petsc_options: dict | None = None,
         u: fem.Function | None = None,
+        P: ufl.Form | fem.Form | None = None,
+        fields: Sequence[tuple[str, npt.ArrayLike]] = (),
         symmetric: bool = False,
         active_only: bool = False,
         restrict_to_active: bool | None = False,
     ):
-        if isinstance(a, Sequence) or isinstance(L, Sequence):
+        if any(isinstance(f, Sequence) for f in (a, L, P)):
             raise TypeError("MovingLinearProblem takes one bilinear and one linear form")
         if u is None and isinstance(L, fem.Form):  # LinearProblem reads it from a UFL form
             raise TypeError("give the solution function u with compiled forms")
-        self._active: tuple[ActiveForm, ActiveForm] | None = None
+        self._active: list[ActiveForm] | None = None
         if active_only:
-            if not (isinstance(a, ufl.Form) and isinstance(L, ufl.Form)):
-                raise TypeError("active_only=True needs the UFL forms a and L")
+            forms = [a, L] if P is None else [a, L, P]
+            if not all(isinstance(f, ufl.Form) for f in forms):
+                raise TypeError("active_only=True needs UFL forms (a, L and P)")
             if u is None:
                 u = fem.Function(L.arguments()[0].ufl_function_space())
-            self._active = ActiveForm(md, a), ActiveForm(md, L)
+            self._active = [ActiveForm(md, f) for f in forms]
             a, L = self._active[0].full, self._active[1].full
+            if P is not None:
+                P = self._active[2].full
         super().__init__(
-            a, L, petsc_options_prefix=petsc_options_prefix, petsc_options=petsc_options, u=u
+            a, L, P=P, petsc_options_prefix=petsc_options_prefix, petsc_options=petsc_options, u=u
         )
+        # LinearProblem's tidy-up of the global options leaves them (the pushed prefix is
+        # not applied to the deletions): remove them here, and give them at every solve
+        # instead (sub-solvers, such as a field split's, read theirs at the set-up).
+        self._petsc_options = dict(petsc_options or {})
+        options = PETSc.Options(petsc_options_prefix)
+        for key in self._petsc_options:
+            options.delValue(key)
         self.md = md
         self.symmetric = symmetric
         self.restrict_to_active = restrict_to_active
@@ -272,6 +298,64 @@ class MovingLinearProblem(LinearProblem):
         self._zero = fem.Function(self.u.function_space)
         if self._active is not None:
             _fill_pattern(self.A, self._active[0])
+            if self.P_mat is not None:
+                _fill_pattern(self.P_mat, self._active[2])
+        V = self.u.function_space
+        owned = V.dofmap.index_map.size_local * V.dofmap.index_map_bs
+        self._fields = [(str(n), np.unique(np.asarray(f, dtype=np.int64))) for n, f in fields]
+        bad = [name for name, idx in self._fields if len(idx) and (idx[0] < 0 or idx[-1] >= owned)]
+        if md.comm.allreduce(len(bad) > 0, op=MPI.LOR):  # on every rank
+            raise ValueError(
+                f"fields {bad or 'of another rank'}: unknowns must be process-local indices of "
+                f"owned unknowns, in [0, {owned}) on this rank"
+            )
+        self._fields_given = False  # whether the KSP's PC holds the fields
+        self.precondition = self.P_mat is not None
+        """Whether :meth:`assemble` assembles ``P`` and the KSP preconditions with it (else
+        with ``A``, as a direct solver needs). Set it with :meth:`set_petsc_options`."""
+
+    def set_petsc_options(self, petsc_options: dict, *, precondition: bool = False) -> None:
+        """Solve with other KSP options from now on, such as another solver when the active
+        set has grown (collective). They replace the options given before; settings they do
+        not name keep their values. ``precondition``: precondition with ``P`` (a Krylov
+        method) or not (a direct solver: it factorises the preconditioning matrix)."""
+        if self.P_mat is None and precondition:
+            raise ValueError("precondition=True needs the problem's preconditioner form P")
+        self.precondition = precondition
+        self._petsc_options = dict(petsc_options)
+        self.solver.reset()
+        with self._options():
+            self.solver.setFromOptions()
+        self._fields_given = False
+        for obj in self._restricted:
+            obj.destroy()
+        self._restricted = []
+
+    @contextmanager
+    def _options(self) -> Iterator[None]:
+        """The problem's options in PETSc's database under its prefix, for the block."""
+        options = PETSc.Options(self.solver.getOptionsPrefix())
+        for key, value in self._petsc_options.items():
+            options.setValue(key, value)
+        try:
+            yield
+        finally:
+            for key in self._petsc_options:
+                options.delValue(key)
+
+    def _give_fields(self, position: Callable[[npt.NDArray[np.int64]], npt.NDArray[np.int64]]):
+        """Give the fields to the PC, each unknown at ``position(unknowns)`` in the matrix
+        solved (-1: not in it)."""
+        comm = self.A.getComm()
+        splits = []
+        for name, unknowns in self._fields:
+            at = position(unknowns)
+            index: Any = at[at >= 0].astype(PETSc.IntType)
+            splits.append((name, PETSc.IS().createGeneral(index, comm)))
+        self.solver.getPC().setFieldSplitIS(*splits)
+        for _, index_set in splits:
+            index_set.destroy()
+        self._fields_given = True
 
     def __del__(self):
         """Leave the PETSc objects to petsc4py's collective garbage collection.
@@ -290,12 +374,19 @@ class MovingLinearProblem(LinearProblem):
         inactive = fem.dirichletbc(self._zero, self._inactive)
         self.bcs = [inactive, *bcs]
         if self._active is None:
-            a, L = self.a, self.L
+            a, L, P = self.a, self.L, self.preconditioner
         else:
-            a, L = (form.step() for form in self._active)
+            a, L = (form.step() for form in self._active[:2])
+            P = self._active[2].step() if self.precondition else None
         reassemble(self.A, self.b, a, L, self.bcs)
         if self.symmetric:
             self.A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+        if self.precondition:
+            from dolfinx.fem.petsc import assemble_matrix
+
+            self.P_mat.zeroEntries()
+            assemble_matrix(self.P_mat, P, bcs=self.bcs)
+            self.P_mat.assemble()
 
     def solve_assembled(self) -> fem.Function:
         """Solve the system assembled by :meth:`assemble` into :attr:`u` (collective).
@@ -322,31 +413,50 @@ class MovingLinearProblem(LinearProblem):
         if not restrict:
             if self._restricted:  # the previous solve had the submatrix
                 self.solver.reset()
+                self._fields_given = False
                 for obj in self._restricted:
                     obj.destroy()
                 self._restricted = []
-            self.solver.setOperators(self.A)
-            self.solver.solve(self.b, u)
+            self.solver.setOperators(self.A, self.P_mat if self.precondition else self.A)
+            if self._fields and not self._fields_given:
+                self._give_fields(lambda unknowns: unknowns + imap.local_range[0] * bs)
+            with self._options():
+                self.solver.solve(self.b, u)
         else:
-            blocks = (np.flatnonzero(keep) + imap.local_range[0]).astype(PETSc.IntType)
+            kept = np.flatnonzero(keep)
+            blocks = (kept + imap.local_range[0]).astype(PETSc.IntType)
             rows = PETSc.IS().createBlock(bs, blocks, comm=self.A.getComm())
             A = self.A.createSubMatrix(rows, rows)
             if self.symmetric:
                 A.setOption(PETSc.Mat.Option.SYMMETRIC, True)
+            P = self.P_mat.createSubMatrix(rows, rows) if self.precondition else None
             sub = self.b.getSubVector(rows)
             rhs = sub.copy()
             self.b.restoreSubVector(rows, sub)
             x = rhs.duplicate()
             self.solver.reset()  # the operator's size changes with the active set
-            self.solver.setOperators(A)
-            self.solver.solve(rhs, x)
+            self.solver.setOperators(A, P)
+            if self._fields:  # positions in the submatrix: the kept blocks in order
+                comm: Any = self.md.comm
+                first = comm.exscan(len(kept) * bs) or 0
+                at = np.full(imap.size_local, -1, dtype=np.int64)
+                at[kept] = first + bs * np.arange(len(kept))
+
+                def position(unknowns: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+                    b, c = np.divmod(unknowns, bs)
+                    return np.where(at[b] >= 0, at[b] + c, -1)
+
+                self._give_fields(position)
+            self._fields_given = False  # (the next reset drops them)
+            with self._options():
+                self.solver.solve(rhs, x)
             self.b.copy(u)  # the fixed unknowns: their identity rows
             sub = u.getSubVector(rows)
             x.copy(sub)
             u.restoreSubVector(rows, sub)
             for obj in (rows, rhs, x, *self._restricted):
                 obj.destroy()
-            self._restricted = [A]  # held by the KSP until the next solve
+            self._restricted = [A] if P is None else [A, P]  # held by the KSP until the next
         self.u.x.scatter_forward()
         reason = self.solver.getConvergedReason()
         if reason <= 0:
@@ -364,6 +474,30 @@ VelocityData = npt.ArrayLike | Callable[[npt.NDArray[np.float64]], npt.NDArray[n
 
 DIRECT = {"ksp_type": "preonly", "pc_type": "lu", "pc_factor_mat_solver_type": "mumps"}
 """MUMPS LU: the default solver of :class:`MovingStokes`."""
+
+ITERATIVE = {
+    "ksp_type": "fgmres",
+    "ksp_gmres_restart": 200,
+    "ksp_rtol": 1e-10,
+    "ksp_atol": 0.0,
+    "ksp_max_it": 1000,
+    "pc_type": "fieldsplit",
+    "pc_fieldsplit_type": "schur",
+    "pc_fieldsplit_schur_fact_type": "upper",
+    "pc_fieldsplit_schur_precondition": "a11",
+    "fieldsplit_u_ksp_type": "preonly",
+    "fieldsplit_u_pc_type": "gamg",
+    "fieldsplit_u_pc_gamg_threshold": 0.02,
+    "fieldsplit_u_mg_levels_ksp_type": "chebyshev",
+    "fieldsplit_u_mg_levels_pc_type": "jacobi",
+    "fieldsplit_p_ksp_type": "preonly",
+    "fieldsplit_p_pc_type": "jacobi",
+}
+"""Flexible GMRES (relative residual 1e-10) with the upper block-triangular factorisation of
+the saddle point system, for :class:`MovingStokes` with ``preconditioner=True``: one
+algebraic multigrid cycle (GAMG, Chebyshev-Jacobi smoothing) on the velocity block of the
+preconditioner matrix, and the Jacobi iteration of its scaled pressure mass matrix for the
+Schur complement. For systems beyond direct factorisation (3D, some 1e5 unknowns)."""
 
 
 class MovingStokes:
@@ -414,8 +548,21 @@ class MovingStokes:
     wall_velocity
         Velocity on the container walls (default 0).
     petsc_options, petsc_options_prefix
-        Solver options (default MUMPS LU, :data:`DIRECT`); ``symmetric=True`` marks the
-        matrix symmetric (for ``pc_type: cholesky``, MUMPS :math:`LDL^T`).
+        Solver options (default MUMPS LU, :data:`DIRECT`; :data:`ITERATIVE` with
+        ``preconditioner=True``); ``symmetric=True`` marks the
+        matrix symmetric (for ``pc_type: cholesky``, MUMPS :math:`LDL^T`). The fields
+        ``u`` and ``p`` are given for ``pc_type: fieldsplit``.
+    preconditioner
+        Assemble a preconditioner matrix at every step (over the active cells, with the
+        same conditions), the vector Laplacian and the scaled pressure mass matrix,
+        :math:`P = \\int \\chi (\\mu \\nabla u : \\nabla v - p q / \\mu)\\, dx`: the velocity
+        block is equivalent to the symmetric gradient's on velocities that vanish on the
+        walls (Korn), the pressure block spectrally equivalent to the Schur complement
+        :math:`-B A^{-1} B^T`. For Krylov methods, such as :data:`ITERATIVE`.
+    restrict_to_active
+        As in :class:`MovingLinearProblem` (default: where the active unknowns are at most
+        half). Krylov methods gain from the submatrix at any share (``True``): every
+        product of the whole matrix also reads the fixed unknowns' rows.
     """
 
     def __init__(
@@ -428,6 +575,8 @@ class MovingStokes:
         petsc_options: dict | None = None,
         petsc_options_prefix: str = "moving_stokes_",
         symmetric: bool = False,
+        preconditioner: bool = False,
+        restrict_to_active: bool | None = None,
     ):
         self.md, self.mu = md, mu
         msh = self.mesh = md.mesh
@@ -452,16 +601,28 @@ class MovingStokes:
         L = chi * ufl.inner(zero, v) * ufl.dx
         self.wh = fem.Function(W)
         """The solution ``(u_h, p_h)`` of the last :meth:`solve`."""
+        P = None
+        if preconditioner:
+            P = chi * (mu * ufl.inner(ufl.grad(u), ufl.grad(v)) - p * q / mu) * ufl.dx
+        owned = W.dofmap.index_map.size_local  # (a mixed space: one index per unknown)
+        fields = []
+        for name, i in (("u", 0), ("p", 1)):
+            dofs = np.asarray(W.sub(i).collapse()[1])
+            fields.append((name, dofs[dofs < owned]))
         self.problem = MovingLinearProblem(
             md,
             a,
             L,
             u=self.wh,
+            P=P,
+            fields=fields,
             symmetric=symmetric,
             active_only=True,
-            restrict_to_active=None,
+            restrict_to_active=restrict_to_active,
             petsc_options_prefix=petsc_options_prefix,
-            petsc_options=DIRECT if petsc_options is None else petsc_options,
+            petsc_options=(ITERATIVE if preconditioner else DIRECT)
+            if petsc_options is None
+            else petsc_options,
         )
 
         # The walls: the background's exterior facets.

@@ -448,3 +448,67 @@ def test_moving_stokes_rigid_translation_and_compiles_once():
     torque, surface = stokes.torque(), stokes.surface_torque()
     assert torque < 0 and surface == pytest.approx(torque, rel=0.05)
     assert np.abs(stokes.force()).max() < 0.15 * abs(torque)  # 0 up to the discretisation
+
+
+@pytest.mark.mpi
+def test_preconditioned_stokes_equals_the_direct_solve():
+    """``MovingStokes(preconditioner=True)`` (FGMRES with the Schur factorisation on the
+    fields u and p, GAMG on P's velocity block, :data:`ITERATIVE`) gives the direct solve's
+    solution, on the submatrix of the active unknowns and on the whole system (the fields
+    in either numbering), over steps whose active sets differ; ``set_petsc_options``
+    switches the solver and back. Relative residual 1e-13 (not ITERATIVE's 1e-10, whose
+    solutions differ from the direct one by up to 1.2e-7 of their size here, 6.7e-8 at
+    1e-12 for the whole system): differences of at most 9e-9 on 1 and 3 ranks, so 1e-7
+    separates them from a wrong set-up (a direct solver factorising P, or fields in the
+    wrong numbering, give O(1) errors or no convergence; a KSP that does not converge
+    raises). Maxima over the ranks, so that all of them pass or fail together."""
+    from dolfinx_universal.moving_problem import DIRECT, ITERATIVE
+
+    tight = ITERATIVE | {"ksp_rtol": 1e-13}
+
+    def gap(x: np.ndarray, y: np.ndarray) -> float:
+        return comm.allreduce(float(np.abs(x - y).max(initial=0.0)), op=MPI.MAX)
+
+    bg = du.equilateral_mesh(comm, [[-1.0, -1.0], [1.0, 1.0]], 0.08)
+    md = MovingDomain(bg, degree=2)
+    direct = MovingStokes(md, 0.5, (-1.0, -1.0), petsc_options_prefix="pc_direct_")
+    krylov = [
+        MovingStokes(
+            md, 0.5, (-1.0, -1.0), preconditioner=True, restrict_to_active=flag,
+            petsc_options=tight, petsc_options_prefix=f"pc_krylov{flag}_",
+        )
+        for flag in (True, False)
+    ]  # fmt: skip
+    assert not direct.problem.precondition and all(k.problem.precondition for k in krylov)
+    for centre, omega in (((0.1, 0.0), 1.0), ((-0.15, 0.1), -0.5)):
+        md.update(du.Domain(None, [du.Circle(centre, 0.45)]))
+        for stokes in (direct, *krylov):
+            stokes.assemble((0.2, -0.1), omega)
+            stokes.solve_assembled()
+        exact = direct.wh.x.array
+        scale = gap(exact, 0.0)
+        for stokes in krylov:
+            ksp = stokes.problem.solver
+            assert ksp.getPC().getType() == "fieldsplit"
+            assert len(ksp.getPC().getFieldSplitSubKSP()) == 2
+            assert ksp.getIterationNumber() > 0
+            assert gap(stokes.wh.x.array, exact) <= 1e-7 * scale
+        assert (
+            np.abs(krylov[0].force() - direct.force()).max() <= 1e-7 * np.abs(direct.force()).max()
+        )
+    # Switched to the direct solver (A factorised, not P) and back.
+    for options, iterative in ((DIRECT, False), (tight, True)):
+        krylov[0].problem.set_petsc_options(options, precondition=iterative)
+        krylov[0].assemble((0.2, -0.1), -0.5)
+        krylov[0].solve_assembled()
+        assert gap(krylov[0].wh.x.array, exact) <= 1e-7 * scale
+        assert krylov[0].problem.solver.getPC().getType() == ("fieldsplit" if iterative else "lu")
+    with pytest.raises(ValueError, match="preconditioner form P"):
+        direct.problem.set_petsc_options(ITERATIVE, precondition=True)
+    # Fields out of range on one rank only: the error on every rank (no hang).
+    V = fem.functionspace(md.mesh, ("Lagrange", 1))
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    a, L = md.active * u * v * ufl.dx, md.active * v * ufl.dx
+    wrong = [("x", [-1] if comm.rank == 0 else [0])]
+    with pytest.raises(ValueError, match="process-local indices of owned unknowns"):
+        MovingLinearProblem(md, a, L, petsc_options_prefix="pc_bad_", fields=wrong)
