@@ -247,7 +247,9 @@ class MovingLinearProblem(LinearProblem):
         solution: the others are fixed, decoupled), or the whole matrix (False), or decide
         at each solve (None): the submatrix where the active unknowns are at most
         :data:`RESTRICT_SHARE` of all. The KSP then sees a new operator at each step: a
-        null space or options attached to :attr:`A` do not reach it.
+        null space or options attached to :attr:`A` do not reach it; and it is a new
+        :attr:`solver` made from ``petsc_options`` (settings made on the old one are not
+        kept).
     """
 
     def __init__(
@@ -316,18 +318,30 @@ class MovingLinearProblem(LinearProblem):
 
     def set_petsc_options(self, petsc_options: dict, *, precondition: bool = False) -> None:
         """Solve with other KSP options from now on, such as another solver when the active
-        set has grown (collective). They replace the options given before; settings they do
-        not name keep their values. ``precondition``: precondition with ``P`` (a Krylov
-        method) or not (a direct solver: it factorises the preconditioning matrix)."""
+        set has grown (collective): a new :attr:`solver` with these options, which replace
+        the ones given before. ``precondition``: precondition with ``P`` (a Krylov method) or
+        not (a direct solver: it factorises the preconditioning matrix)."""
         if self.P_mat is None and precondition:
             raise ValueError("precondition=True needs the problem's preconditioner form P")
         self.precondition = precondition
         self._petsc_options = dict(petsc_options)
-        self.solver.reset()
+        self._new_solver()
+
+    def _new_solver(self) -> None:
+        """Replace :attr:`solver` by a new KSP with the problem's options (collective).
+
+        Not ``KSP.reset``: a reset field split keeps its record that its sub-solvers have
+        read their options, so the sub-solvers of new fields would keep PETSc's defaults
+        (seen: ILU instead of the LU asked for, 53 iterations instead of 1)."""
+        old: PETSc.KSP = self.solver
+        ksp = PETSc.KSP().create(old.getComm())
+        ksp.setOptionsPrefix(old.getOptionsPrefix())
         with self._options():
-            self.solver.setFromOptions()
+            ksp.setFromOptions()
+        old.destroy()
+        self._solver = ksp
         self._fields_given = False
-        for obj in self._restricted:
+        for obj in self._restricted:  # (the old KSP held them)
             obj.destroy()
         self._restricted = []
 
@@ -412,11 +426,7 @@ class MovingLinearProblem(LinearProblem):
             restrict = active <= RESTRICT_SHARE * imap.size_global
         if not restrict:
             if self._restricted:  # the previous solve had the submatrix
-                self.solver.reset()
-                self._fields_given = False
-                for obj in self._restricted:
-                    obj.destroy()
-                self._restricted = []
+                self._new_solver()
             self.solver.setOperators(self.A, self.P_mat if self.precondition else self.A)
             if self._fields and not self._fields_given:
                 self._give_fields(lambda unknowns: unknowns + imap.local_range[0] * bs)
@@ -434,7 +444,7 @@ class MovingLinearProblem(LinearProblem):
             rhs = sub.copy()
             self.b.restoreSubVector(rows, sub)
             x = rhs.duplicate()
-            self.solver.reset()  # the operator's size changes with the active set
+            self._new_solver()  # the operator's size changes with the active set
             self.solver.setOperators(A, P)
             if self._fields:  # positions in the submatrix: the kept blocks in order
                 comm: Any = self.md.comm
@@ -447,14 +457,13 @@ class MovingLinearProblem(LinearProblem):
                     return np.where(at[b] >= 0, at[b] + c, -1)
 
                 self._give_fields(position)
-            self._fields_given = False  # (the next reset drops them)
             with self._options():
                 self.solver.solve(rhs, x)
             self.b.copy(u)  # the fixed unknowns: their identity rows
             sub = u.getSubVector(rows)
             x.copy(sub)
             u.restoreSubVector(rows, sub)
-            for obj in (rows, rhs, x, *self._restricted):
+            for obj in (rows, rhs, x):
                 obj.destroy()
             self._restricted = [A] if P is None else [A, P]  # held by the KSP until the next
         self.u.x.scatter_forward()

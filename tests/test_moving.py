@@ -512,3 +512,51 @@ def test_preconditioned_stokes_equals_the_direct_solve():
     wrong = [("x", [-1] if comm.rank == 0 else [0])]
     with pytest.raises(ValueError, match="process-local indices of owned unknowns"):
         MovingLinearProblem(md, a, L, petsc_options_prefix="pc_bad_", fields=wrong)
+
+
+@pytest.mark.mpi
+def test_fields_of_a_blocked_space_and_a_compiled_preconditioner():
+    """``fields`` on a blocked space (bs = 2: unknowns ``block * 2 + component``) and a
+    preconditioner ``P`` given as a UFL form without ``active_only`` (compiled by DOLFINx's
+    ``LinearProblem``): the vector Laplacian's components decouple, so a field split by
+    component with LU on each solves it in one GMRES iteration, on the submatrix of the
+    active unknowns and on the whole system; the same solution as MUMPS on the whole
+    system (1e-10 of its size: two factorisations' rounding)."""
+    bg = du.equilateral_mesh(comm, [[-1.0, -1.0], [1.0, 1.0]], 0.1)
+    md = MovingDomain(bg, degree=2)
+    V = fem.functionspace(md.mesh, ("Lagrange", 2, (2,)))
+    u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+    chi = md.active
+    a = chi * ufl.inner(ufl.grad(u), ufl.grad(v)) * ufl.dx
+    f = fem.Constant(md.mesh, np.array([1.0, -2.0]))
+    L = chi * ufl.inner(f, v) * ufl.dx
+    owned = V.dofmap.index_map.size_local
+    fields = [(name, 2 * np.arange(owned) + i) for i, name in enumerate("xy")]
+    split = {
+        "ksp_type": "gmres", "ksp_rtol": 1e-12, "pc_type": "fieldsplit",
+        "pc_fieldsplit_type": "additive", "fieldsplit_x_ksp_type": "preonly",
+        "fieldsplit_x_pc_type": "lu", "fieldsplit_y_ksp_type": "preonly",
+        "fieldsplit_y_pc_type": "lu",
+    }  # fmt: skip
+    direct = MovingLinearProblem(
+        md, a, L, petsc_options_prefix="bs_direct_",
+        petsc_options={"ksp_type": "preonly", "pc_type": "lu"},
+    )  # fmt: skip
+    problems = [
+        MovingLinearProblem(
+            md, a, L, P=a, fields=fields, restrict_to_active=flag, petsc_options=split,
+            petsc_options_prefix=f"bs_split{flag}_",
+        )
+        for flag in (True, False)
+    ]  # fmt: skip
+    for centre in ((0.1, 0.0), (-0.2, 0.15)):
+        md.update(du.Circle(centre, 0.6))
+        bcs = [fem.dirichletbc(np.zeros(2), md.immersed_dofs(V), V)]
+        exact = direct.solve(bcs).x.array
+        scale = comm.allreduce(float(np.abs(exact).max()), op=MPI.MAX)
+        assert scale > 0.01
+        for problem in problems:
+            got = problem.solve(bcs).x.array
+            assert problem.solver.getIterationNumber() == 1
+            gap = comm.allreduce(float(np.abs(got - exact).max()), op=MPI.MAX)
+            assert gap <= 1e-10 * scale
