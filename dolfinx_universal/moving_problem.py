@@ -596,8 +596,8 @@ class MovingStokes:
         P2v = basix.ufl.element("Lagrange", cell, 2, shape=(d,))
         P1 = basix.ufl.element("Lagrange", cell, 1)
         W = self.W = fem.functionspace(msh, basix.ufl.mixed_element([P2v, P1]))
-        self.V, _ = W.sub(0).collapse()
-        self.Q, _ = W.sub(1).collapse()
+        self.V, u_dofs = W.sub(0).collapse()
+        self.Q, p_dofs = W.sub(1).collapse()
         V, Q = self.V, self.Q
         (u, p), (v, q) = ufl.TrialFunctions(W), ufl.TestFunctions(W)
         chi = md.active
@@ -615,8 +615,7 @@ class MovingStokes:
             P = chi * (mu * ufl.inner(ufl.grad(u), ufl.grad(v)) - p * q / mu) * ufl.dx
         owned = W.dofmap.index_map.size_local  # (a mixed space: one index per unknown)
         fields = []
-        for name, i in (("u", 0), ("p", 1)):
-            dofs = np.asarray(W.sub(i).collapse()[1])
+        for name, dofs in (("u", np.asarray(u_dofs)), ("p", np.asarray(p_dofs))):
             fields.append((name, dofs[dofs < owned]))
         self.problem = MovingLinearProblem(
             md,
