@@ -24,6 +24,21 @@ dihedral angles (target: at least 20 degrees on every domain), refinement rounds
 
     python benchmarks/fuzz_domains.py --dim 3 --n 20 --out out/fuzz3d
     python benchmarks/fuzz_domains.py --dim 3 --n 500 --out out/fuzz3d
+
+``--dim 3 --degrees 2,3,4``: curved tetrahedra (``mesh_domain(..., degree=q)``, q cycled over
+the seeds); the straight mesh is checked as above and the curved one by
+``tests/mesh_checks_3d.check_curved_surface_mesh``: ``det J`` sampled on a lattice of every
+curved cell (positive, and not below the certificate's proven bound), every node of the
+immersed faces on Gamma, the volume within the straight mesh's a priori bound (and its
+gain over the straight mesh reported).
+
+``--dim 3 --moving K``: each surface moved through ``K`` positions of a random rigid motion
+on one background (``MovingDomain.from_motion``), visited in order and one step back; after
+every update the active cells and nodes must equal a fresh ``conform`` + ``curved_mesh`` of
+the same position, which is checked as above.
+
+    python benchmarks/fuzz_domains.py --dim 3 --n 300 --degrees 2,3,4 --out out/fuzz3d_curved
+    python benchmarks/fuzz_domains.py --dim 3 --n 100 --degrees 1,2,3 --moving 4 --out out/moving
 """
 
 from __future__ import annotations
@@ -149,6 +164,7 @@ def run_one(comm: MPI.Comm, seed: int, degree: int, max_cells: float, ref: bool)
     ):
         rec[k] = r[k]
     for k in (
+        "min_jacobian_ratio",
         "min_angle_deg",
         "max_angle_deg",
         "min_jacobian_ratio",
@@ -255,16 +271,24 @@ def _alarm(signum: int, frame: Any) -> None:
 
 
 def run_one_3d(
-    comm: MPI.Comm, seed: int, mild: bool, max_cells: float, timeout: float | None = None
+    comm: MPI.Comm,
+    seed: int,
+    mild: bool,
+    max_cells: float,
+    timeout: float | None = None,
+    degree: int = 1,
 ) -> dict:
-    """Mesh and check one random surface (degree 1); a JSON-serialisable record.
+    """Mesh and check one random surface at geometry degree ``degree``; a JSON record.
+
+    The straight mesh is checked by ``check_surface_mesh``; for ``degree >= 2`` the curved
+    mesh also by ``check_curved_surface_mesh`` (sampled ``det J``, nodes on Gamma, volume).
 
     With ``timeout`` (seconds, serial only) a ``mesh_domain`` call still running then is
     stopped (at the next Python bytecode) and recorded as ``timeout``.
     """
     import signal
 
-    from mesh_checks_3d import check_surface_mesh
+    from mesh_checks_3d import check_curved_surface_mesh, check_surface_mesh
     from random_surfaces import random_surface
 
     t0 = time.perf_counter()
@@ -272,7 +296,7 @@ def run_one_3d(
     rec: dict[str, Any] = {
         "seed": seed,
         "kind": d.kind,
-        "degree": 1,
+        "degree": degree,
         "h": d.h,
         "h_over_feature": d.h / d.min_feature,
         "extent_over_feature": d.extent / d.min_feature,
@@ -288,7 +312,7 @@ def run_one_3d(
         signal.setitimer(signal.ITIMER_REAL, float(timeout))  # type: ignore[arg-type]
     t0 = time.perf_counter()
     try:
-        result = du.mesh_domain(comm, d.boundary, d.h, max_cells=max_cells)
+        result = du.mesh_domain(comm, d.boundary, d.h, degree=degree, max_cells=max_cells)
     except _Timeout:
         rec.update(outcome="timeout", message=f"mesh_domain still running after {timeout} s")
         rec["time"] = time.perf_counter() - t0
@@ -312,7 +336,18 @@ def run_one_3d(
     rec["timings"] = dict(result.timings)
     t1 = time.perf_counter()
     try:
-        r = check_surface_mesh(result.mesh, result.facet_tags, d, d.label)
+        cm = result.conforming
+        r = check_surface_mesh(cm.mesh, cm.facet_tags, d, d.label)
+        rc = None
+        if degree > 1:
+            rc = check_curved_surface_mesh(
+                result.mesh,
+                result.facet_tags,
+                d,
+                r,
+                result.certificate.min_jacobian_ratio,
+                f"{d.label} q={degree}",
+            )
     except Exception as e:  # noqa: BLE001
         rec.update(
             outcome="exception",
@@ -321,9 +356,15 @@ def run_one_3d(
         )
         return rec
     rec["check_time"] = time.perf_counter() - t1
-    rec["outcome"] = "wrong_mesh" if r["failures"] else "ok"
-    if r["failures"]:
-        rec["message"] = " | ".join(r["failures"])[:800]
+    failures = r["failures"] + (rc["failures"] if rc is not None else [])
+    rec["outcome"] = "wrong_mesh" if failures else "ok"
+    if failures:
+        rec["message"] = " | ".join(failures)[:800]
+    if rc is not None:
+        for k in ("curved_cells", "min_sampled_jacobian_ratio", "volume_gain"):
+            rec[k] = rc[k]
+        rec["curved_volume_rel_error"] = rc["volume_rel_error"]
+        rec["curved_max_node_distance"] = rc["max_node_distance"]
     for k in (
         "num_cells",
         "min_dihedral_deg",
@@ -339,6 +380,7 @@ def run_one_3d(
         rec[k] = r[k]
     rec["below_target"] = bool(r["min_dihedral_deg"] < TARGET_DIHEDRAL)
     for k in (
+        "min_jacobian_ratio",
         "min_angle_deg",
         "max_angle_deg",
         "refinement_rounds",
@@ -347,6 +389,141 @@ def run_one_3d(
         "num_background_cells",
     ):
         rec[f"cert_{k}"] = _cert(result, k)
+    return rec
+
+
+MOVING_ATOL = 1e-12
+"""Largest difference (relative to the extent of Gamma) between a moving update's nodes and
+those of a fresh ``conform`` + ``curved_mesh`` of the same position: the same computation in
+another order of the cells (a node shared by two cells is written by each), so rounding of
+the O(extent) coordinates, about 1e-16 relative; 1e-12 is far below any changed node."""
+
+
+def run_one_moving_3d(
+    comm: MPI.Comm,
+    seed: int,
+    mild: bool,
+    degree: int,
+    steps: int,
+    timeout: float | None = None,
+) -> dict:
+    """One random surface moved by a random rigid motion through ``MovingDomain``.
+
+    The positions ``k = 0 .. steps - 1`` turn the surface about a random axis through its
+    centre by ``k theta / (steps - 1)`` (``theta`` uniform in [0.2, 1.2] rad) and translate
+    it by ``k d / (steps - 1)`` (``|d|`` uniform in [0.5, 3] h, a random direction).
+    ``MovingDomain.from_motion`` sizes one background for all of them; the positions are
+    then visited in order and position 1 once more (a step back). After every step the
+    active cells and their nodes must equal those of a fresh ``conform`` + ``curved_mesh``
+    of that position on the same background (:data:`MOVING_ATOL`, the indicator exactly),
+    and that fresh mesh must pass ``check_surface_mesh`` and, for ``degree >= 2``,
+    ``check_curved_surface_mesh`` against the moved surface's exact data (the update's
+    proven Jacobian ratio as the certificate).
+    """
+    import signal
+
+    from mesh_checks_3d import check_curved_surface_mesh, check_surface_mesh
+    from random_surfaces import moved_surface, random_surface
+    from scipy.spatial.transform import Rotation
+
+    d = random_surface(seed, mild=mild)
+    rng = np.random.default_rng([seed, 31])
+    axis = rng.normal(size=3)
+    axis /= np.linalg.norm(axis)
+    theta = rng.uniform(0.2, 1.2)
+    shift = rng.normal(size=3)
+    shift *= rng.uniform(0.5, 3.0) * d.h / np.linalg.norm(shift)
+    centre = d.shapes[0].samples(2000).mean(axis=0)
+    fractions = np.linspace(0.0, 1.0, steps)
+    positions = [
+        moved_surface(d, Rotation.from_rotvec(f * theta * axis).as_matrix(), centre, f * shift)
+        for f in fractions
+    ]
+    rec: dict[str, Any] = {
+        "seed": seed,
+        "kind": d.kind,
+        "degree": degree,
+        "h": d.h,
+        "steps": steps,
+        "theta": theta,
+        "shift_over_h": float(np.linalg.norm(shift) / d.h),
+        "estimated_cells": d.estimated_cells,
+        "description": d.description,
+    }
+    alarm = timeout is not None and comm.size == 1
+    if alarm:
+        signal.signal(signal.SIGALRM, _alarm)
+        signal.setitimer(signal.ITIMER_REAL, float(timeout))  # type: ignore[arg-type]
+    t0 = time.perf_counter()
+    failures: list[str] = []
+    try:
+        md = du.MovingDomain.from_motion(comm, [p.boundary for p in positions], d.h, degree=degree)
+        rec["num_background_cells"] = md.mesh.topology.index_map(3).size_global
+        rec["refinement_rounds"] = md.refinement_rounds
+        n = md.mesh.topology.index_map(3).size_local
+        dmin, gap, ratio = np.inf, 0.0, np.inf
+        update_time = 0.0
+        for k in [*range(steps), 1]:
+            p = positions[k]
+            label = f"{d.label} q={degree} position {k}"
+            t1 = time.perf_counter()
+            report = md.update(p.boundary)
+            update_time += time.perf_counter() - t1
+            cm = md.universal.conform(p.boundary)
+            fresh = du.curved_mesh(cm, degree, md.map) if degree > 1 else None
+            kept_n = cm.mesh.topology.index_map(3).size_local
+            active = np.sort(md.active_cells[md.active_cells < n])
+            kept = np.sort(cm.cell_map[:kept_n])
+            if not comm.allreduce(bool(np.array_equal(active, kept)), op=MPI.LAND):
+                failures.append(f"{label}: the active cells are not the cells conform keeps")
+            else:
+                msh = fresh.mesh if fresh is not None else cm.mesh
+                x_md = md.mesh.geometry.x[md.mesh.geometry.dofmaps[0][kept]]
+                x_new = msh.geometry.x[msh.geometry.dofmaps[0][:kept_n]]
+                order = np.argsort(cm.cell_map[:kept_n])
+                g = float(np.abs(x_md - x_new[order]).max()) if kept_n else 0.0
+                gap = max(gap, comm.allreduce(g, op=MPI.MAX))
+            r = check_surface_mesh(cm.mesh, cm.facet_tags, p, label)
+            failures += r["failures"]
+            dmin = min(dmin, r["min_dihedral_deg"])
+            if fresh is not None:
+                rc = check_curved_surface_mesh(
+                    fresh.mesh, fresh.facet_tags, p, r, report.min_jacobian_ratio, label
+                )
+                failures += rc["failures"]
+                ratio = min(ratio, rc["min_sampled_jacobian_ratio"])
+        if gap > MOVING_ATOL * d.extent:
+            failures.append(
+                f"{d.label} q={degree}: a moving update's nodes differ from a fresh "
+                f"conform + curved_mesh by {gap:.3g}"
+            )
+    except _Timeout:
+        rec.update(outcome="timeout", message=f"still running after {timeout} s")
+        rec["time"] = time.perf_counter() - t0
+        return rec
+    except du.MeshingError as e:
+        rec.update(outcome="meshing_error", message=str(e)[:1500])
+        rec["time"] = time.perf_counter() - t0
+        return rec
+    except Exception as e:  # noqa: BLE001 - every failure is recorded
+        rec.update(
+            outcome="exception",
+            message=f"{type(e).__name__}: {e}"[:400],
+            traceback=traceback.format_exc()[-2000:],
+        )
+        rec["time"] = time.perf_counter() - t0
+        return rec
+    finally:
+        if alarm:
+            signal.setitimer(signal.ITIMER_REAL, 0.0)
+    rec["time"] = time.perf_counter() - t0
+    rec["update_time_s"] = update_time / (steps + 1)
+    rec["outcome"] = "wrong_mesh" if failures else "ok"
+    if failures:
+        rec["message"] = " | ".join(failures)[:800]
+    rec["max_gap_to_fresh"] = gap
+    rec["min_dihedral_deg"] = dmin
+    rec["min_sampled_jacobian_ratio"] = ratio if degree > 1 else None
     return rec
 
 
@@ -363,7 +540,25 @@ def summarise_3d(records: list[dict], wall: float) -> dict:
     return {
         "n": n,
         "dim": 3,
-        "mesher": "mesh_domain (degree 1)",
+        "mesher": ("MovingDomain" if any("steps" in r for r in records) else "mesh_domain")
+        + " (degree "
+        + ",".join(str(q) for q in sorted({r.get("degree", 1) for r in records}))
+        + ")",
+        "by_degree": {
+            str(q): dict(Counter(r["outcome"] for r in records if r.get("degree", 1) == q))
+            for q in sorted({r.get("degree", 1) for r in records})
+        },
+        "curved_sampled_jacobian_ratio_percentiles_0_1_50": _pct(
+            [r.get("min_sampled_jacobian_ratio") for r in meshed if r.get("degree", 1) > 1],
+            [0, 1, 50],
+        ),
+        "curved_certificate_ratio_percentiles_0_1_50": _pct(
+            [r.get("cert_min_jacobian_ratio") for r in meshed if r.get("degree", 1) > 1],
+            [0, 1, 50],
+        ),
+        "curved_volume_gain_percentiles_0_50": _pct(
+            [r.get("volume_gain") for r in meshed if r.get("degree", 1) > 1], [0, 50]
+        ),
         "wall_s": wall,
         "counts": {k: counts.get(k, 0) for k in OUTCOMES_3D},
         "success_rate": counts.get("ok", 0) / n if n else 0.0,
@@ -421,6 +616,14 @@ def print_table_3d(s: dict) -> None:
     print(f"cells p50/p100: {s['num_cells_percentiles_50_100']}")
     print(f"volume constant p50/p100: {s['volume_constant_percentiles_50_100']}")
     print(f"refinement rounds: {s['refinement_rounds']}")
+    print(f"outcomes by degree: {s['by_degree']}")
+    if any(q != "1" for q in s["by_degree"]):
+        print(
+            "curved: sampled det J ratio p0/p1/p50 "
+            f"{s['curved_sampled_jacobian_ratio_percentiles_0_1_50']}, proven (certificate) "
+            f"{s['curved_certificate_ratio_percentiles_0_1_50']}, volume error straight / "
+            f"curved p0/p50 {s['curved_volume_gain_percentiles_0_50']}"
+        )
     print("\n| kind | outcomes |\n|---|---|")
     for k, v in s["by_kind"].items():
         print(f"| {k} | {', '.join(f'{o}: {c}' for o, c in sorted(v.items()))} |")
@@ -437,6 +640,7 @@ def main_3d(args: argparse.Namespace) -> dict:
     comm = MPI.COMM_WORLD
     n = 20 if args.quick else (args.n if args.n is not None else 500)
     kinds = args.kinds.split(",") if args.kinds else list(KINDS_3D)
+    degrees = [int(q) for q in (args.degrees or "1").split(",")]
     records: list[dict] = []
     wall0 = 0.0
     if args.resume and args.out is not None and (args.out / "summary.json").exists():
@@ -456,7 +660,30 @@ def main_3d(args: argparse.Namespace) -> dict:
             seed = args.seed0 + i
             if KINDS_3D[seed % len(KINDS_3D)] not in kinds or seed in done:
                 continue
-            rec = run_one_3d(comm, seed, args.mild, args.mesh_max_cells, args.timeout)
+            degree = degrees[i % len(degrees)]
+            if args.moving:
+                rec = run_one_moving_3d(comm, seed, args.mild, degree, args.moving, args.timeout)
+                records.append(rec)
+                if comm.rank == 0:
+                    extra = (
+                        f"bg {rec['num_background_cells']} tets, update {rec['update_time_s']:.2f}"
+                        f" s, gap to fresh {rec['max_gap_to_fresh']:.1e}, min dihedral "
+                        f"{rec['min_dihedral_deg']:.1f}"
+                        if rec["outcome"] in ("ok", "wrong_mesh")
+                        else ""
+                    )
+                    if rec["outcome"] != "ok":
+                        extra += " " + rec.get("message", "")[:300]
+                    print(
+                        f"seed={seed} kind={rec['kind']} q={degree} moving: {rec['outcome']} in "
+                        f"{rec['time']:.1f} s {extra}",
+                        flush=True,
+                    )
+                if args.out is not None and comm.rank == 0:
+                    wall = wall0 + time.perf_counter() - t0
+                    _write(args.out, summarise_3d(records, wall), records)
+                continue
+            rec = run_one_3d(comm, seed, args.mild, args.mesh_max_cells, args.timeout, degree)
             records.append(rec)
             if comm.rank == 0:
                 extra = (
@@ -464,6 +691,14 @@ def main_3d(args: argparse.Namespace) -> dict:
                     if "min_dihedral_deg" in rec
                     else rec.get("message", "")[:300]
                 )
+                if "min_sampled_jacobian_ratio" in rec:
+                    extra += (
+                        f" q={degree}: det J ratio >= {rec['cert_min_jacobian_ratio']:.3f} "
+                        f"(sampled {rec['min_sampled_jacobian_ratio']:.3f}), volume "
+                        f"{rec['volume_gain']:.0f}x better than straight"
+                    )
+                if rec["outcome"] == "wrong_mesh":
+                    extra += " " + rec.get("message", "")[:300]
                 print(
                     f"seed={seed} kind={rec['kind']}: {rec['outcome']} in {rec['time']:.1f} s "
                     f"(~{rec['estimated_cells']:.2g} bg tets) {extra}",
@@ -495,8 +730,8 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--seed0", type=int, default=0, help="first seed")
     p.add_argument(
         "--degrees",
-        default="1,2,3,4",
-        help="geometry degrees, cycled over the seeds (comma-separated)",
+        default=None,
+        help="geometry degrees, cycled over the seeds (comma-separated; 1,2,3,4, 3D: 1)",
     )
     p.add_argument("--quick", action="store_true", help="50 domains (3D: 20)")
     p.add_argument("--kinds", default=None, help="kinds to run (comma-separated; others skipped)")
@@ -529,6 +764,12 @@ def main(argv: list[str] | None = None) -> dict:
         help="3D: keep the records of OUT/summary.json and run only the missing seeds",
     )
     p.add_argument(
+        "--moving",
+        type=int,
+        default=0,
+        help="3D: move each surface through this many positions with MovingDomain instead",
+    )
+    p.add_argument(
         "--timeout",
         type=float,
         default=None,
@@ -539,7 +780,7 @@ def main(argv: list[str] | None = None) -> dict:
         return main_3d(args)
     comm = MPI.COMM_WORLD
     n = 50 if args.quick else (args.n if args.n is not None else 2000)
-    degrees = [int(q) for q in args.degrees.split(",")]
+    degrees = [int(q) for q in (args.degrees or "1,2,3,4").split(",")]
     kinds = args.kinds.split(",") if args.kinds else list(KINDS)
     records = []
     t0 = time.perf_counter()

@@ -43,6 +43,10 @@ test's own level sets (a :class:`random_surfaces.RandomSurface`: ``signed_distan
   Both add the stated error of the exact volume and ``1e-11 extent^3``.
 
 Collective; every rank returns the same dictionary.
+
+:func:`check_curved_surface_mesh` then measures the degree-q mesh with the same vertices
+and topology (basix and DOLFINx only): ``det J`` sampled on every curved cell against the
+package's proven bound, the nodes of the immersed faces on Gamma, and the volume.
 """
 
 from __future__ import annotations
@@ -61,7 +65,13 @@ from scipy.sparse.csgraph import connected_components
 
 import dolfinx_universal as du
 
-__all__ = ["check_surface_mesh", "dihedral_angles", "signed_volumes", "surface_topology"]
+__all__ = [
+    "check_curved_surface_mesh",
+    "check_surface_mesh",
+    "dihedral_angles",
+    "signed_volumes",
+    "surface_topology",
+]
 
 Float = npt.NDArray[np.float64]
 Int = npt.NDArray[np.int64]
@@ -413,4 +423,154 @@ def check_surface_mesh(
         "surface_area": area,
         "h_face": h_f,
         "pieces": pieces,
+    }
+
+
+AFFINE_TOL = 1e-12
+"""A cell is curved when a geometry node is farther than this (relative to the extent of
+Gamma) from the affine image of its vertices: DOLFINx writes the nodes of an affine cell
+to a few ulps of the coordinates, and a curved cell's nodes move by ``O(kappa h^2)``."""
+CERTIFICATE_TOL = 1e-9
+"""The certificate's proven lower bound of ``det J / det J_straight`` may exceed the sampled
+minimum by this much: both are computed in floating point, by different formulas
+(Bernstein coefficients against the Jacobian at lattice points), and agree to about 1e-13
+where the minimum sits at a lattice point (a vertex, often); 1e-9 is far above that and far
+below any real defect of the proof (a bound above a sampled value by 1e-3 or more)."""
+
+
+def check_curved_surface_mesh(
+    mesh: dmesh.Mesh,
+    facet_tags: dmesh.MeshTags,
+    d: Any,
+    straight: dict[str, Any],
+    certificate_ratio: float | None = None,
+    label: str = "",
+) -> dict[str, Any]:
+    """Measure a curved (degree ``q >= 2``) tetrahedral mesh of the solid ``d``; list its failures.
+
+    The straight mesh with the same vertices and topology is checked first by
+    :func:`check_surface_mesh` (its result is ``straight``): cells, tags, the closed
+    oriented Gamma_h, pieces. The degree-q geometry is then measured with basix and
+    DOLFINx only, never with the package's own Jacobian code:
+
+    * Jacobians: every owned cell with a node off the affine image of its vertices
+      (:data:`AFFINE_TOL`) is sampled on the equispaced lattice of order ``3 q`` (its
+      vertices, edges and faces included); ``det J / det J_straight`` must be positive at
+      every sample (a sample is no proof, but an inverted cell of a fuzz domain would show),
+      and the package's proven lower bound ``certificate_ratio`` must not exceed the
+      sampled minimum (:data:`CERTIFICATE_TOL`). The nodes are tabulated with basix's
+      Lagrange element of the mesh's coordinate element variant, checked against
+      DOLFINx's ``push_forward`` on a few cells first (the node order).
+    * Every geometry node of an IMMERSED face lies on Gamma: ``|phi| <= NODE_TOL * extent``.
+    * Volume: ``|V_h - V|`` (quadrature of degree ``3 q``: ``det J`` has degree ``3 (q -
+      1)``) must stay within the straight mesh's a priori bound (:data:`APRIORI_C`
+      ``A_h kappa_max h_f^2``): a node placed or ordered wrongly changes the volume by
+      ``O(h^3)`` per cell. The ratio of the straight mesh's volume error to this one is
+      reported (the gain of the curved geometry).
+
+    Collective; every rank returns the same dictionary.
+    """
+    import basix
+
+    cmap = mesh.geometry.cmaps[0]
+    q = int(cmap.degree)
+    if mesh.topology.dim != 3 or q < 2:
+        raise ValueError("check_curved_surface_mesh checks curved (degree >= 2) tetrahedra")
+    comm = mesh.comm
+    failures: list[str] = []
+    prefix = f"{label}: " if label else ""
+    extent = float(d.extent)
+    el = basix.create_element(
+        basix.ElementFamily.P,
+        basix.CellType.tetrahedron,
+        q,
+        basix.LagrangeVariant(int(cmap.variant)),
+    )
+    nc = mesh.topology.index_map(3).size_local
+    x = mesh.geometry.x
+    nodes = x[mesh.geometry.dofmaps[0][:nc]]  # (nc, ndofs, 3)
+    ref = el.points  # (ndofs, 3); dofs 0-3 at the vertices
+    lam = np.column_stack([1.0 - ref.sum(axis=1), ref])  # barycentric
+    affine = np.einsum("nk,ckj->cnj", lam, nodes[:, :4])
+    off = np.abs(nodes - affine).max(axis=(1, 2)) if nc else np.zeros(0)
+    curved = np.flatnonzero(off > AFFINE_TOL * extent)
+    # the node order: basix's basis against DOLFINx's push-forward
+    if len(curved):
+        probe = basix.create_lattice(
+            basix.CellType.tetrahedron, 2, basix.LatticeType.equispaced, True
+        )
+        phi = el.tabulate(0, probe)[0, :, :, 0]
+        for c in curved[:3]:
+            mine = phi @ nodes[c]
+            theirs = cmap.push_forward(probe, nodes[c])
+            if not np.allclose(mine, theirs, rtol=0.0, atol=1e-12 * extent):
+                raise RuntimeError("basix's Lagrange basis does not match the coordinate element")
+    samples = basix.create_lattice(
+        basix.CellType.tetrahedron, 3 * q, basix.LatticeType.equispaced, True
+    )
+    dphi = el.tabulate(1, samples)[1:4, :, :, 0]  # (3, npts, ndofs)
+    ratio_min = np.inf
+    where = None
+    for start in range(0, len(curved), 2000):
+        cells = curved[start : start + 2000]
+        xc = nodes[cells]
+        jac = np.einsum("cki,jpk->cpij", xc, dphi)  # d x_i / d X_j
+        det = np.linalg.det(jac)
+        e = xc[:, 1:4] - xc[:, :1]  # rows: the straight cell's edges from vertex 0
+        det0 = np.linalg.det(np.transpose(e, (0, 2, 1)))
+        r = det / det0[:, None]
+        k = int(np.argmin(r.min(axis=1)))
+        if r[k].min() < ratio_min:
+            ratio_min = float(r[k].min())
+            where = xc[k, :4].mean(axis=0).tolist()
+    ratio_min = comm.allreduce(ratio_min, op=MPI.MIN)
+    n_curved = comm.allreduce(len(curved))
+    if ratio_min <= 0.0:
+        fail_at = comm.allgather(where if where is not None else None)
+        fail_at = [w for w in fail_at if w is not None]
+        failures.append(
+            prefix + f"a curved tetrahedron is inverted: sampled det J / det J_straight = "
+            f"{ratio_min:.3g} (near {fail_at[0] if fail_at else '?'})"
+        )
+    if (
+        certificate_ratio is not None
+        and n_curved
+        and certificate_ratio > ratio_min + CERTIFICATE_TOL
+    ):
+        failures.append(
+            prefix + f"the certificate's proven det J ratio {certificate_ratio:.6g} exceeds the "
+            f"sampled minimum {ratio_min:.6g}"
+        )
+
+    # nodes of the immersed faces on Gamma
+    nfo = mesh.topology.index_map(2).size_local
+    imm = facet_tags.find(du.IMMERSED)
+    imm = imm[imm < nfo]
+    mesh.topology.create_connectivity(2, 3)
+    face_nodes = np.unique(dmesh.entities_to_geometry(mesh, 2, imm)) if len(imm) else []
+    dist = np.abs(d.signed_distance(x[face_nodes])) if len(face_nodes) else np.zeros(0)
+    node = comm.allreduce(float(dist.max()) if len(dist) else 0.0, op=MPI.MAX)
+    if node > NODE_TOL * extent:
+        failures.append(prefix + f"a node of an IMMERSED face is {node:.3g} from Gamma")
+
+    # volume
+    dx = ufl.dx(mesh, metadata={"quadrature_degree": 3 * q})
+    v_h = comm.allreduce(fem.assemble_scalar(fem.form(1.0 * dx)), op=MPI.SUM)
+    err = v_h - d.exact_volume
+    slack = d.volume_error + 1e-11 * extent**3
+    bound = APRIORI_C * straight["surface_area"] * d.max_curvature * straight["h_face"] ** 2
+    if abs(err) > bound + slack:
+        failures.append(
+            prefix + f"degree-{q} volume error {err:.3g} above the straight mesh's a priori "
+            f"bound {bound + slack:.3g}"
+        )
+    return {
+        "failures": failures,
+        "degree": q,
+        "curved_cells": n_curved,
+        "min_sampled_jacobian_ratio": float(ratio_min) if n_curved else 1.0,
+        "max_node_distance": node,
+        "volume_error": float(err),
+        "volume_rel_error": float(abs(err) / abs(d.exact_volume)),
+        "volume_gain": float(abs(straight["volume_error"]) / abs(err)) if err else np.inf,
     }

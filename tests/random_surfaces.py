@@ -70,7 +70,15 @@ from scipy.special import gammaln
 
 import dolfinx_universal as du
 
-__all__ = ["KINDS", "RATIO_RANGE", "RandomSurface", "estimate_cells", "random_surface"]
+__all__ = [
+    "KINDS",
+    "RATIO_RANGE",
+    "MovedSurface",
+    "RandomSurface",
+    "estimate_cells",
+    "moved_surface",
+    "random_surface",
+]
 
 Float = npt.NDArray[np.float64]
 
@@ -190,6 +198,54 @@ class RandomSurface:
         d, n = self._nearest(x)
         k = np.argmin(np.abs(d), axis=0)
         return n[k, np.arange(len(x))]
+
+
+@dataclass(frozen=True)
+class MovedSurface(RandomSurface):
+    """A :class:`RandomSurface` under the rigid motion ``y -> c + R (y - c) + t``.
+
+    Volumes, curvatures, feature sizes and Euler characteristics are those of the surface;
+    :attr:`boundary` is the package's :class:`~dolfinx_universal.RigidMotion` of each
+    component, and :meth:`signed_distance` and :meth:`normal` evaluate the private level
+    sets at the points moved back (``c + R^T (x - c - t)``), normals turned by ``R``.
+    """
+
+    rotation: Float = field(default_factory=lambda: np.eye(3), repr=False)
+    center: Float = field(default_factory=lambda: np.zeros(3), repr=False)
+    translation: Float = field(default_factory=lambda: np.zeros(3), repr=False)
+
+    def _back(self, x: npt.ArrayLike) -> Float:
+        x = np.asarray(x, dtype=np.float64).reshape(-1, 3)
+        return self.center + (x - self.center - self.translation) @ self.rotation
+
+    def signed_distance(self, x: npt.ArrayLike) -> Float:
+        return super().signed_distance(self._back(x))
+
+    def normal(self, x: npt.ArrayLike) -> Float:
+        return super().normal(self._back(x)) @ self.rotation.T
+
+
+def moved_surface(
+    d: RandomSurface, rotation: npt.ArrayLike, center: npt.ArrayLike, translation: npt.ArrayLike
+) -> MovedSurface:
+    """``d`` turned by the rotation matrix ``rotation`` about ``center``, then translated."""
+    R = np.asarray(rotation, dtype=np.float64)
+    c = np.asarray(center, dtype=np.float64)
+    t = np.asarray(translation, dtype=np.float64)
+
+    def move(b: du.Boundary) -> du.Boundary:
+        return du.RigidMotion(b, center=c, translation=t, rotation=R)
+
+    b = d.boundary
+    if isinstance(b, du.Domain):
+        boundary: du.Boundary = du.Domain(
+            move(b.container) if b.container is not None else None, [move(x) for x in b.bodies]
+        )
+    else:
+        boundary = move(b)
+    base = {f: getattr(d, f) for f in RandomSurface.__dataclass_fields__}
+    base["boundary"] = boundary
+    return MovedSurface(**base, rotation=R, center=c, translation=t)
 
 
 # ----------------------------------------------------------------------------- helpers
