@@ -270,6 +270,23 @@ def _alarm(signum: int, frame: Any) -> None:
     raise _Timeout
 
 
+def _stopped(rec: dict, t0: float, e: BaseException, timeout_message: str) -> dict:
+    """The record of a 3D run stopped by ``e`` (in an ``except`` block): ``timeout``,
+    ``meshing_error`` (the message) or ``exception`` (with the traceback); its time."""
+    if isinstance(e, _Timeout):
+        rec.update(outcome="timeout", message=timeout_message)
+    elif isinstance(e, du.MeshingError):
+        rec.update(outcome="meshing_error", message=str(e)[:1500])
+    else:
+        rec.update(
+            outcome="exception",
+            message=f"{type(e).__name__}: {e}"[:400],
+            traceback=traceback.format_exc()[-2000:],
+        )
+    rec["time"] = time.perf_counter() - t0
+    return rec
+
+
 def run_one_3d(
     comm: MPI.Comm,
     seed: int,
@@ -313,22 +330,8 @@ def run_one_3d(
     t0 = time.perf_counter()
     try:
         result = du.mesh_domain(comm, d.boundary, d.h, degree=degree, max_cells=max_cells)
-    except _Timeout:
-        rec.update(outcome="timeout", message=f"mesh_domain still running after {timeout} s")
-        rec["time"] = time.perf_counter() - t0
-        return rec
-    except du.MeshingError as e:
-        rec.update(outcome="meshing_error", message=str(e)[:1500])
-        rec["time"] = time.perf_counter() - t0
-        return rec
-    except Exception as e:  # noqa: BLE001 - every failure is recorded
-        rec.update(
-            outcome="exception",
-            message=f"{type(e).__name__}: {e}"[:400],
-            traceback=traceback.format_exc()[-2000:],
-        )
-        rec["time"] = time.perf_counter() - t0
-        return rec
+    except (_Timeout, Exception) as e:  # noqa: BLE001 - every failure is recorded
+        return _stopped(rec, t0, e, f"mesh_domain still running after {timeout} s")
     finally:
         if alarm:
             signal.setitimer(signal.ITIMER_REAL, 0.0)
@@ -497,22 +500,8 @@ def run_one_moving_3d(
                 f"{d.label} q={degree}: a moving update's nodes differ from a fresh "
                 f"conform + curved_mesh by {gap:.3g}"
             )
-    except _Timeout:
-        rec.update(outcome="timeout", message=f"still running after {timeout} s")
-        rec["time"] = time.perf_counter() - t0
-        return rec
-    except du.MeshingError as e:
-        rec.update(outcome="meshing_error", message=str(e)[:1500])
-        rec["time"] = time.perf_counter() - t0
-        return rec
-    except Exception as e:  # noqa: BLE001 - every failure is recorded
-        rec.update(
-            outcome="exception",
-            message=f"{type(e).__name__}: {e}"[:400],
-            traceback=traceback.format_exc()[-2000:],
-        )
-        rec["time"] = time.perf_counter() - t0
-        return rec
+    except (_Timeout, Exception) as e:  # noqa: BLE001 - every failure is recorded
+        return _stopped(rec, t0, e, f"still running after {timeout} s")
     finally:
         if alarm:
             signal.setitimer(signal.ITIMER_REAL, 0.0)
@@ -631,6 +620,39 @@ def print_table_3d(s: dict) -> None:
         print(f"- seed={f['seed']} kind={f['kind']}: {f['outcome']}: {f['message']}")
 
 
+def _progress_3d(rec: dict) -> str:
+    """One line on a 3D record (static or moving)."""
+    seed, degree, outcome = rec["seed"], rec["degree"], rec["outcome"]
+    meshed = outcome in ("ok", "wrong_mesh")
+    if "steps" in rec:  # a moving record
+        extra = (
+            f"bg {rec['num_background_cells']} tets, update {rec['update_time_s']:.2f} s, gap "
+            f"to fresh {rec['max_gap_to_fresh']:.1e}, min dihedral {rec['min_dihedral_deg']:.1f}"
+            if meshed
+            else ""
+        )
+        head = f"seed={seed} kind={rec['kind']} q={degree} moving: {outcome} in {rec['time']:.1f} s"
+    else:
+        extra = (
+            f"dihedral [{rec['min_dihedral_deg']:.1f}, {rec['max_dihedral_deg']:.1f}]"
+            if "min_dihedral_deg" in rec
+            else ""
+        )
+        if "min_sampled_jacobian_ratio" in rec:
+            extra += (
+                f" q={degree}: det J ratio >= {rec['cert_min_jacobian_ratio']:.3f} "
+                f"(sampled {rec['min_sampled_jacobian_ratio']:.3f}), volume "
+                f"{rec['volume_gain']:.0f}x better than straight"
+            )
+        head = (
+            f"seed={seed} kind={rec['kind']}: {outcome} in {rec['time']:.1f} s "
+            f"(~{rec['estimated_cells']:.2g} bg tets)"
+        )
+    if outcome != "ok":
+        extra += " " + rec.get("message", "")[:300]
+    return f"{head} {extra}".rstrip()
+
+
 def main_3d(args: argparse.Namespace) -> dict:
     """The 3D mode of :func:`main`."""
     import signal
@@ -663,47 +685,11 @@ def main_3d(args: argparse.Namespace) -> dict:
             degree = degrees[i % len(degrees)]
             if args.moving:
                 rec = run_one_moving_3d(comm, seed, args.mild, degree, args.moving, args.timeout)
-                records.append(rec)
-                if comm.rank == 0:
-                    extra = (
-                        f"bg {rec['num_background_cells']} tets, update {rec['update_time_s']:.2f}"
-                        f" s, gap to fresh {rec['max_gap_to_fresh']:.1e}, min dihedral "
-                        f"{rec['min_dihedral_deg']:.1f}"
-                        if rec["outcome"] in ("ok", "wrong_mesh")
-                        else ""
-                    )
-                    if rec["outcome"] != "ok":
-                        extra += " " + rec.get("message", "")[:300]
-                    print(
-                        f"seed={seed} kind={rec['kind']} q={degree} moving: {rec['outcome']} in "
-                        f"{rec['time']:.1f} s {extra}",
-                        flush=True,
-                    )
-                if args.out is not None and comm.rank == 0:
-                    wall = wall0 + time.perf_counter() - t0
-                    _write(args.out, summarise_3d(records, wall), records)
-                continue
-            rec = run_one_3d(comm, seed, args.mild, args.mesh_max_cells, args.timeout, degree)
+            else:
+                rec = run_one_3d(comm, seed, args.mild, args.mesh_max_cells, args.timeout, degree)
             records.append(rec)
             if comm.rank == 0:
-                extra = (
-                    f"dihedral [{rec['min_dihedral_deg']:.1f}, {rec['max_dihedral_deg']:.1f}]"
-                    if "min_dihedral_deg" in rec
-                    else rec.get("message", "")[:300]
-                )
-                if "min_sampled_jacobian_ratio" in rec:
-                    extra += (
-                        f" q={degree}: det J ratio >= {rec['cert_min_jacobian_ratio']:.3f} "
-                        f"(sampled {rec['min_sampled_jacobian_ratio']:.3f}), volume "
-                        f"{rec['volume_gain']:.0f}x better than straight"
-                    )
-                if rec["outcome"] == "wrong_mesh":
-                    extra += " " + rec.get("message", "")[:300]
-                print(
-                    f"seed={seed} kind={rec['kind']}: {rec['outcome']} in {rec['time']:.1f} s "
-                    f"(~{rec['estimated_cells']:.2g} bg tets) {extra}",
-                    flush=True,
-                )
+                print(_progress_3d(rec), flush=True)
             if args.out is not None and comm.rank == 0:
                 wall = wall0 + time.perf_counter() - t0
                 _write(args.out, summarise_3d(records, wall), records)
