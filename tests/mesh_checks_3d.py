@@ -66,6 +66,7 @@ from scipy.sparse.csgraph import connected_components
 import dolfinx_universal as du
 
 __all__ = [
+    "active_node_gap",
     "check_curved_surface_mesh",
     "check_surface_mesh",
     "dihedral_angles",
@@ -526,8 +527,7 @@ def check_curved_surface_mesh(
     ratio_min = comm.allreduce(ratio_min, op=MPI.MIN)
     n_curved = comm.allreduce(len(curved))
     if ratio_min <= 0.0:
-        fail_at = comm.allgather(where if where is not None else None)
-        fail_at = [w for w in fail_at if w is not None]
+        fail_at = [w for w in comm.allgather(where) if w is not None]
         failures.append(
             prefix + f"a curved tetrahedron is inverted: sampled det J / det J_straight = "
             f"{ratio_min:.3g} (near {fail_at[0] if fail_at else '?'})"
@@ -574,3 +574,25 @@ def check_curved_surface_mesh(
         "volume_rel_error": float(abs(err) / abs(d.exact_volume)),
         "volume_gain": float(abs(straight["volume_error"]) / abs(err)) if err else np.inf,
     }
+
+
+def active_node_gap(md: Any, cm: Any, msh: dmesh.Mesh) -> tuple[bool, float]:
+    """Compare a ``MovingDomain`` after an update with a fresh conform of the same position.
+
+    ``cm`` is ``md.universal.conform(boundary)``, ``msh`` its mesh or its curved mesh.
+    Returns whether the owned active cells of ``md`` are the owned cells ``cm`` keeps, and
+    (where they are) the largest difference of their geometry nodes from those of ``msh``
+    (process-local; ``inf`` where the cells differ).
+    """
+    n = md.mesh.topology.index_map(3).size_local
+    kept_n = cm.mesh.topology.index_map(3).size_local
+    active = np.sort(md.active_cells[md.active_cells < n])
+    kept = np.sort(cm.cell_map[:kept_n])
+    if not np.array_equal(active, kept):
+        return False, np.inf
+    if not kept_n:
+        return True, 0.0
+    x_md = md.mesh.geometry.x[md.mesh.geometry.dofmaps[0][kept]]
+    x_new = msh.geometry.x[msh.geometry.dofmaps[0][:kept_n]]
+    order = np.argsort(cm.cell_map[:kept_n])
+    return True, float(np.abs(x_md - x_new[order]).max())
