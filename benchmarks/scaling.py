@@ -15,12 +15,25 @@ the rotating three-blade body of ``benchmarks/moving_update.py``, the script tim
 
 Each time is the maximum over the ranks (barriers around every call), then the median over
 ``--repeats`` calls (for ``conform`` and ``update``: after a warm-up call, which samples the
-boundary; ``straight`` adds the maxima of its sub-phases). The table also
-gives each rank count's share of the cells.
+boundary; ``straight`` adds the maxima of its sub-phases: classification, projections, the
+map with its relaxation). The table also gives each rank count's share of the cells.
+
+With ``--dim 3`` the same phases run on tetrahedra: an A15 background
+(:func:`~dolfinx_universal.a15_mesh`, about 5e5 and 2e6 tetrahedra by default) of the box of
+``benchmarks/conform_floor_3d.py`` and its tilted solid torus, moved by a fraction of ``h`` at
+every step (``background``: ``a15_mesh``; ``update``: ``MovingDomain(degree=2, map="I~")``).
+
+Every row also gives figures that define the mesh and do not depend on the partition, so that
+runs on different numbers of ranks can be compared (the same mesh on any number of ranks):
+the kept cells and positively cut cells (integers), the extreme angles (interior angles of
+triangles, dihedral angles of tetrahedra; minima and maxima over the cells, which no
+summation order changes), the proven Jacobian ratio of ``curved_mesh`` and the sum of the
+squared vertex coordinates of the conforming mesh (a sum over the ranks: equal up to its
+summation order, about 1e-13 relative). ``--json FILE`` writes the rows.
 
 Run (``--quick``: one small background, for CI)::
 
-    python benchmarks/scaling.py [--sizes 1e6 4e6] [--repeats 3] [--quick]
+    python benchmarks/scaling.py [--dim 2|3] [--sizes 1e6 4e6] [--repeats 3] [--quick]
     for n in 1 2 4 8 16; do mpirun -n $n python benchmarks/scaling.py; done
 
 Strong scaling needs as many cores as ranks: run 1 .. 16 ranks on a machine with at least 16
@@ -30,6 +43,7 @@ cores (the speed-up of a phase is its 1-rank time over its n-rank time, same ``-
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -43,28 +57,64 @@ from moving_update import propeller, timed  # noqa: E402
 
 import dolfinx_universal as du  # noqa: E402
 from dolfinx_universal.moving import MovingDomain  # noqa: E402
+from dolfinx_universal.quality import quality_report  # noqa: E402
 
 comm = MPI.COMM_WORLD
 PHASES = ("background", "prepare", "conform", "straight", "mesh", "curved", "update")
+FINGERPRINT = ("kept", "positively_cut", "angle_min", "angle_max", "jacobian_ratio", "moment")
 
 
-def run(target: float, repeats: int) -> dict:
-    """Median phase times (max over ranks) on an equilateral background of ~``target`` cells."""
-    h = float(np.sqrt(4.0 / (target * np.sqrt(3) / 4)))
-    box = [[-1.0, -1.0], [1.0, 1.0]]
-    body = propeller()
+def case(dim: int, target: float):
+    """The background builder, its arguments, the domain of each step and the curved map
+    (``dim`` 2 or 3)."""
+    if dim == 2:
+        h = float(np.sqrt(4.0 / (target * np.sqrt(3) / 4)))
+        body = propeller()
+
+        def domain2(step: int):
+            return du.Domain(None, [du.RigidMotion(body, angle=np.radians(3.0 * step))])
+
+        return du.equilateral_mesh, ([[-1.0, -1.0], [1.0, 1.0]], h), domain2, "I"
+    from conform_floor_3d import background_box, surfaces
+
+    box, h = background_box(target)
+
+    def domain3(step: int):
+        return surfaces("torus", h, step)
+
+    return du.a15_mesh, (box, h), domain3, "I~"
+
+
+def fingerprint(cm, curved) -> dict:
+    """Partition-independent figures of a conforming mesh and its curved mesh (module
+    docstring)."""
+    report = quality_report(cm)
+    x = cm.mesh.geometry.x[: cm.mesh.geometry.index_map().size_local]  # each node once
+    return {
+        "kept": int(report["n_cells"]),
+        "positively_cut": int(report["n_positively_cut"]),
+        "angle_min": float(report["theta_min_deg"]),
+        "angle_max": float(report["theta_max_deg"]),
+        "jacobian_ratio": float(curved.min_jacobian_ratio),
+        "moment": comm.allreduce(float((x * x).sum()), op=MPI.SUM),
+    }
+
+
+def run(dim: int, target: float, repeats: int) -> dict:
+    """Median phase times (max over ranks) on a background of about ``target`` cells."""
+    build, args, domain, kind = case(dim, target)
     times: dict[str, list[float]] = {k: [] for k in PHASES}
     background = None
     for _ in range(repeats):
         background = None  # free the previous one first
-        background, t = timed(du.equilateral_mesh, comm, box, h)
+        background, t = timed(build, comm, *args)
         times["background"].append(t)
     assert background is not None
-    ncells = comm.allreduce(background.topology.index_map(2).size_local)
+    ncells = comm.allreduce(background.topology.index_map(dim).size_local)
     for _ in range(repeats):
         um, t = timed(du.UniversalMesh, background)
         times["prepare"].append(t)
-    shape = du.Domain(None, [du.RigidMotion(body)])
+    shape = domain(0)
     for rep in range(repeats + 1):
         cm, t = timed(um.conform, shape)
         if not rep:  # warm-up: samples the boundary once (cached by UniversalMesh)
@@ -72,34 +122,41 @@ def run(target: float, repeats: int) -> dict:
         times["conform"].append(t)
         split = {k: comm.allreduce(float(v), op=MPI.MAX) for k, v in cm.timings.items()}
         times["mesh"].append(split["mesh"])
-        times["straight"].append(sum(v for k, v in split.items() if k != "mesh"))
+        times["straight"].append(sum(v for k, v in split.items() if k not in ("mesh", "relax")))
     for _ in range(repeats):
-        _, t = timed(du.curved_mesh, cm, 2)
+        curved, t = timed(du.curved_mesh, cm, 2, kind)
         times["curved"].append(t)
-    del um, cm
-    md = MovingDomain(background, 2)
+    row: dict = fingerprint(cm, curved)
+    del um, cm, curved
+    md = MovingDomain(background, 2, map=kind)
     for step in range(repeats + 1):
-        boundary = du.Domain(None, [du.RigidMotion(body, angle=np.radians(3.0 * step))])
-        _, t = timed(md.update, boundary)
+        _, t = timed(md.update, domain(step))
         if step:  # the first step is the warm-up
             times["update"].append(t)
-    row = {k: float(np.median(v)) for k, v in times.items()}
+    row |= {k: float(np.median(v)) for k, v in times.items()}
     row["cells"] = ncells
-    row["max_local"] = comm.allreduce(background.topology.index_map(2).size_local, op=MPI.MAX)
+    row["max_local"] = comm.allreduce(background.topology.index_map(dim).size_local, op=MPI.MAX)
+    row["ranks"] = comm.size
     return row
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sizes", type=float, nargs="+", default=[1e6, 4e6])
+    parser.add_argument("--dim", type=int, choices=(2, 3), default=2)
+    parser.add_argument("--sizes", type=float, nargs="+", help="cells (default: module docstring)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument(
-        "--quick", action="store_true", help="one small background (2e4 cells), 2 repeats"
+        "--quick", action="store_true", help="one small background (2e4 / 8e4 cells), 2 repeats"
     )
+    parser.add_argument("--json", help="write the rows to this file")
     args = parser.parse_args()
     if args.quick:
-        args.sizes, args.repeats = [2e4], 2
-    rows = [run(target, args.repeats) for target in args.sizes]
+        args.sizes, args.repeats = [2e4 if args.dim == 2 else 8e4], 2
+    elif args.sizes is None:
+        args.sizes = [1e6, 4e6] if args.dim == 2 else [5e5, 2e6]
+    rows = [run(args.dim, target, args.repeats) for target in args.sizes]
+    if args.json and comm.rank == 0:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
     if comm.rank == 0:
         print(
             f"\nranks: {comm.size}; seconds, max over ranks, median of {args.repeats} "
@@ -111,6 +168,9 @@ def main() -> None:
             print(
                 f"{r['cells']:9d} {r['max_local']:9d} " + " ".join(f"{r[k]:10.4f}" for k in PHASES)
             )
+        print("the meshes (the same on any number of ranks):")
+        for r in rows:
+            print(f"{r['cells']:9d} " + ", ".join(f"{k} {r[k]!r}" for k in FINGERPRINT))
 
 
 if __name__ == "__main__":
