@@ -19,7 +19,7 @@ boundary; ``straight`` adds the maxima of its sub-phases: classification, projec
 map with its relaxation). The table also gives each rank count's share of the cells.
 
 With ``--dim 3`` the same phases run on tetrahedra: an A15 background
-(:func:`~dolfinx_universal.a15_mesh`, about 5e5 and 2e6 tetrahedra by default) of the box of
+(:func:`~dolfinx_universal.a15_mesh`, about 1e6 and 4e6 tetrahedra by default) of the box of
 ``benchmarks/conform_floor_3d.py`` and its tilted solid torus, moved by a fraction of ``h`` at
 every step (``background``: ``a15_mesh``; ``update``: ``MovingDomain(degree=2, map="I~")``).
 
@@ -31,9 +31,14 @@ summation order changes), the proven Jacobian ratio of ``curved_mesh`` and the s
 squared vertex coordinates of the conforming mesh (a sum over the ranks: equal up to its
 summation order, about 1e-13 relative). ``--json FILE`` writes the rows.
 
+``--mesh-domain H`` times :func:`~dolfinx_universal.mesh_domain` of that torus instead (graded
+octree background, largest size ``H``, q = 2) and gives how evenly the ranks hold the kept
+cells and the moved vertices (busiest rank over the mean).
+
 Run (``--quick``: one small background, for CI)::
 
     python benchmarks/scaling.py [--dim 2|3] [--sizes 1e6 4e6] [--repeats 3] [--quick]
+    python benchmarks/scaling.py --mesh-domain 0.04
     for n in 1 2 4 8 16; do mpirun -n $n python benchmarks/scaling.py; done
 
 Strong scaling needs as many cores as ranks: run 1 .. 16 ranks on a machine with at least 16
@@ -140,6 +145,35 @@ def run(dim: int, target: float, repeats: int) -> dict:
     return row
 
 
+def mesh_domain_row(h: float, repeats: int) -> None:
+    """Time ``mesh_domain`` of the torus of ``--dim 3`` (q = 2) and print how evenly the
+    ranks hold the work near Gamma."""
+    from conform_floor_3d import surfaces
+
+    times = []
+    for _ in range(repeats):
+        md, t = timed(lambda: du.mesh_domain(comm, surfaces("torus", h, 0), h, degree=2))
+        times.append(t)
+    cm = md.conforming
+    nv = cm.mesh.topology.index_map(0).size_local
+    local = np.array(
+        [cm.mesh.topology.index_map(3).size_local, np.count_nonzero(cm.moved[:nv])], dtype=float
+    )
+    most, total = np.empty(2), np.empty(2)
+    comm.Allreduce(local, most, op=MPI.MAX)
+    comm.Allreduce(local, total, op=MPI.SUM)
+    background = cm.background.topology.index_map(3).size_global
+    if comm.rank == 0:
+        balance = most * comm.size / np.maximum(total, 1.0)
+        print(
+            f"\nranks: {comm.size}; mesh_domain(torus, h={h}, degree=2): "
+            f"{np.median(times):.3f} s (median of {repeats}); {background} background and "
+            f"{int(total[0])} kept tetrahedra; busiest rank over the mean: kept cells "
+            f"{balance[0]:.2f}, moved vertices {balance[1]:.2f}; proven Jacobian ratio "
+            f"{md.certificate.min_jacobian_ratio!r}"
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--dim", type=int, choices=(2, 3), default=2)
@@ -149,11 +183,14 @@ def main() -> None:
         "--quick", action="store_true", help="one small background (2e4 / 8e4 cells), 2 repeats"
     )
     parser.add_argument("--json", help="write the rows to this file")
+    parser.add_argument("--mesh-domain", type=float, help="time mesh_domain of the torus, h = H")
     args = parser.parse_args()
     if args.quick:
         args.sizes, args.repeats = [2e4 if args.dim == 2 else 8e4], 2
     elif args.sizes is None:
-        args.sizes = [1e6, 4e6] if args.dim == 2 else [5e5, 2e6]
+        args.sizes = [1e6, 4e6]
+    if args.mesh_domain:
+        return mesh_domain_row(args.mesh_domain, args.repeats)
     rows = [run(args.dim, target, args.repeats) for target in args.sizes]
     if args.json and comm.rank == 0:
         Path(args.json).write_text(json.dumps(rows, indent=1))

@@ -39,3 +39,10 @@ def test_scaling_benchmark_quick(dim, tmp_path):
         assert one[key] == two[key], key
     for key in ("angle_min", "angle_max", "jacobian_ratio", "moment"):
         assert two[key] == pytest.approx(one[key], rel=1e-12, abs=0.0), key
+
+
+@pytest.mark.skip_in_parallel
+def test_scaling_benchmark_mesh_domain():
+    proc = run_mpi(2, [SCRIPT, "--mesh-domain", "0.15", "--repeats", "1"], timeout=600)
+    line = next(line for line in proc.stdout.splitlines() if line.startswith("ranks: 2"))
+    assert "mesh_domain(torus, h=0.15, degree=2)" in line and "busiest rank" in line, line
