@@ -33,7 +33,8 @@ summation order, about 1e-13 relative). ``--json FILE`` writes the rows.
 
 ``--mesh-domain H`` times :func:`~dolfinx_universal.mesh_domain` of that torus instead (graded
 octree background, largest size ``H``, q = 2) and gives how evenly the ranks hold the kept
-cells and the moved vertices (busiest rank over the mean).
+cells and the moved vertices (busiest rank over the mean), and the time and balance of
+:func:`~dolfinx_universal.io.redistribute` of the mesh.
 
 Run (``--quick``: one small background, for CI)::
 
@@ -61,6 +62,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from moving_update import propeller, timed  # noqa: E402
 
 import dolfinx_universal as du  # noqa: E402
+from dolfinx_universal import io as duio  # noqa: E402
 from dolfinx_universal.moving import MovingDomain  # noqa: E402
 from dolfinx_universal.quality import quality_report  # noqa: E402
 
@@ -163,6 +165,8 @@ def mesh_domain_row(h: float, repeats: int) -> None:
     comm.Allreduce(local, most, op=MPI.MAX)
     comm.Allreduce(local, total, op=MPI.SUM)
     background = cm.background.topology.index_map(3).size_global
+    (even, _), t_even = timed(duio.redistribute, md.mesh, md.facet_tags)
+    spread = comm.allreduce(even.topology.index_map(3).size_local, op=MPI.MAX)
     if comm.rank == 0:
         balance = most * comm.size / np.maximum(total, 1.0)
         print(
@@ -170,7 +174,8 @@ def mesh_domain_row(h: float, repeats: int) -> None:
             f"{np.median(times):.3f} s (median of {repeats}); {background} background and "
             f"{int(total[0])} kept tetrahedra; busiest rank over the mean: kept cells "
             f"{balance[0]:.2f}, moved vertices {balance[1]:.2f}; proven Jacobian ratio "
-            f"{md.certificate.min_jacobian_ratio!r}"
+            f"{md.certificate.min_jacobian_ratio!r}; io.redistribute: {t_even:.3f} s, "
+            f"busiest rank over the mean {spread * comm.size / max(total[0], 1.0):.2f}"
         )
 
 

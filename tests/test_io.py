@@ -275,3 +275,72 @@ def dmesh_meshtags(msh, dim: int):
 
     msh.topology.create_entities(dim)
     return dmesh.meshtags(msh, dim, np.zeros(1, np.int32), np.ones(1, np.int32))
+
+
+def _shares(msh) -> list[int]:
+    """Owned cells of each rank."""
+    return comm.allgather(msh.topology.index_map(msh.topology.dim).size_local)
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("name", ["disc1", "disc3", "holed3"])
+def test_redistribute_triangles(meshes, name):
+    """The same cells, nodes, area and facet tags, the cells shared evenly (DOLFINx's graph
+    partitioner balances the cell counts to a few per cent; one cell more for rounding)."""
+    cv = meshes[name]
+    msh, tags = duio.redistribute(cv.mesh, cv.facet_tags)
+    assert tags is not None and tags.dim == 1
+    a, b = fingerprint(cv.mesh, cv.facet_tags), fingerprint(msh, tags)
+    shares = _shares(msh)
+    if comm.rank == 0:
+        assert_same(a, b)
+        assert max(shares) <= 1.1 * np.mean(shares) + 1, shares
+    if comm.size > 1:
+        assert comm.allreduce(msh.topology.index_map(2).num_ghosts) > 0  # shared-facet ghosts
+    alone, none = duio.redistribute(cv.mesh)
+    assert none is None and alone.topology.index_map(2).size_global == a["num_cells"]
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("name", ["ball3", "hole3"])
+def test_redistribute_curved_tetrahedra(curved_tets, name):
+    """Degree-3 tetrahedra: the same nodes, volume (to the summation order) and face tags."""
+    cm = curved_tets[name]
+    msh, tags = duio.redistribute(cm.mesh, cm.facet_tags)
+    assert tags is not None and tags.dim == 2
+    assert msh.geometry.cmaps[0].degree == 3 and msh.geometry.cmaps[0].variant == GLL
+    a, b = fingerprint(cm.mesh, cm.facet_tags), fingerprint(msh, tags)
+    va, vb = _volume(cm.mesh), _volume(msh)
+    shares = _shares(msh)
+    if comm.rank == 0:
+        assert_same(a, b, dim=3)
+        assert vb == pytest.approx(va, rel=AREA_RTOL)
+        assert b["tags"]["1"]["count"] > 0
+        assert max(shares) <= 1.1 * np.mean(shares) + 1, shares
+
+
+@pytest.mark.mpi
+@needs_ranks(2)
+def test_redistribute_from_one_rank():
+    """All cells on rank 0 (the others hold none, as the ranks Gamma does not cross): the
+    cells end up shared, the same mesh. (A first version failed on the empty ranks.)"""
+    from dolfinx_universal.background import create_mesh, layout_partitioner
+
+    square = dmesh.create_unit_square(MPI.COMM_SELF, 6, 6)
+    cells = square.geometry.dofmaps[0] if comm.rank == 0 else np.zeros((0, 3), np.int64)
+    x = square.geometry.x[:, :2] if comm.rank == 0 else np.zeros((0, 2))
+    lopsided = create_mesh(comm, cells, x, layout_partitioner())
+    lopsided.topology.create_entities(1)
+    lopsided.topology.create_connectivity(1, 2)
+    facets = dmesh.exterior_facet_indices(lopsided.topology)
+    tags = dmesh.meshtags(lopsided, 1, facets, np.full(len(facets), du.OUTER, dtype=np.int32))
+    assert _shares(lopsided)[1:] == [0] * (comm.size - 1)
+    msh, even = duio.redistribute(lopsided, tags)
+    a, b = fingerprint(lopsided, tags), fingerprint(msh, even)
+    shares = _shares(msh)
+    if comm.rank == 0:
+        assert_same(a, b)
+        assert b["tags"][str(du.OUTER)]["count"] == 24 and b["area"] == pytest.approx(
+            1.0, rel=1e-14
+        )
+        assert min(shares) > 0 and max(shares) <= 1.1 * np.mean(shares) + 1, shares
