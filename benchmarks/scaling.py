@@ -34,12 +34,13 @@ summation order, about 1e-13 relative). ``--json FILE`` writes the rows.
 ``--mesh-domain H`` times :func:`~dolfinx_universal.mesh_domain` of that torus instead (graded
 octree background, largest size ``H``, q = 2) and gives how evenly the ranks hold the kept
 cells and the moved vertices (busiest rank over the mean), and the time and balance of
-:func:`~dolfinx_universal.io.redistribute` of the mesh.
+:func:`~dolfinx_universal.io.redistribute` of the mesh; with ``--solve`` also a P2 Poisson
+solve (CG + GAMG) on the mesh before and after.
 
 Run (``--quick``: one small background, for CI)::
 
     python benchmarks/scaling.py [--dim 2|3] [--sizes 1e6 4e6] [--repeats 3] [--quick]
-    python benchmarks/scaling.py --mesh-domain 0.04
+    python benchmarks/scaling.py --mesh-domain 0.04 [--solve]
     for n in 1 2 4 8 16; do mpirun -n $n python benchmarks/scaling.py; done
 
 Strong scaling needs as many cores as ranks: run 1 .. 16 ranks on a machine with at least 16
@@ -147,9 +148,36 @@ def run(dim: int, target: float, repeats: int) -> dict:
     return row
 
 
-def mesh_domain_row(h: float, repeats: int) -> None:
-    """Time ``mesh_domain`` of the torus of ``--dim 3`` (q = 2) and print how evenly the
-    ranks hold the work near Gamma."""
+def poisson_seconds(msh, facet_tags, repeats: int) -> float:
+    """Fastest of ``repeats`` P2 Poisson solves on ``msh`` (zero Dirichlet data on Gamma,
+    CG + GAMG to 1e-10): assembly, preconditioner set-up and iterations."""
+    import ufl
+    from dolfinx import fem
+    from dolfinx.fem.petsc import LinearProblem
+
+    V = fem.functionspace(msh, ("Lagrange", 2))
+    u, v, x = ufl.TrialFunction(V), ufl.TestFunction(V), ufl.SpatialCoordinate(msh)
+    msh.topology.create_connectivity(2, 3)
+    dofs = fem.locate_dofs_topological(V, 2, facet_tags.find(du.IMMERSED))
+    options = {"ksp_type": "cg", "pc_type": "gamg", "ksp_rtol": 1e-10}
+    times = []
+    for _ in range(repeats):
+        problem = LinearProblem(
+            ufl.inner(ufl.grad(u), ufl.grad(v)) * ufl.dx,
+            ufl.sin(x[0]) * ufl.cos(x[1]) * v * ufl.dx,
+            bcs=[fem.dirichletbc(0.0, dofs, V)],
+            petsc_options=options,
+            petsc_options_prefix="scaling_",
+        )
+        _, t = timed(problem.solve)
+        times.append(t)
+    return min(times)
+
+
+def mesh_domain_row(h: float, repeats: int, solve: bool) -> None:
+    """Time ``mesh_domain`` of the torus of ``--dim 3`` (q = 2), print how evenly the
+    ranks hold the work near Gamma, before and after ``io.redistribute`` (with ``solve``:
+    and a Poisson solve on both meshes)."""
     from conform_floor_3d import surfaces
 
     times = []
@@ -165,8 +193,11 @@ def mesh_domain_row(h: float, repeats: int) -> None:
     comm.Allreduce(local, most, op=MPI.MAX)
     comm.Allreduce(local, total, op=MPI.SUM)
     background = cm.background.topology.index_map(3).size_global
-    (even, _), t_even = timed(duio.redistribute, md.mesh, md.facet_tags)
+    (even, even_tags), t_even = timed(duio.redistribute, md.mesh, md.facet_tags)
     spread = comm.allreduce(even.topology.index_map(3).size_local, op=MPI.MAX)
+    if solve:
+        before = poisson_seconds(md.mesh, md.facet_tags, repeats)
+        after = poisson_seconds(even, even_tags, repeats)
     if comm.rank == 0:
         balance = most * comm.size / np.maximum(total, 1.0)
         print(
@@ -177,6 +208,8 @@ def mesh_domain_row(h: float, repeats: int) -> None:
             f"{md.certificate.min_jacobian_ratio!r}; io.redistribute: {t_even:.3f} s, "
             f"busiest rank over the mean {spread * comm.size / max(total[0], 1.0):.2f}"
         )
+        if solve:
+            print(f"P2 Poisson solve (CG + GAMG): {before:.3f} s before, {after:.3f} s after")
 
 
 def main() -> None:
@@ -189,13 +222,14 @@ def main() -> None:
     )
     parser.add_argument("--json", help="write the rows to this file")
     parser.add_argument("--mesh-domain", type=float, help="time mesh_domain of the torus, h = H")
+    parser.add_argument("--solve", action="store_true", help="--mesh-domain: and Poisson solves")
     args = parser.parse_args()
     if args.quick:
         args.sizes, args.repeats = [2e4 if args.dim == 2 else 8e4], 2
     elif args.sizes is None:
         args.sizes = [1e6, 4e6]
     if args.mesh_domain:
-        return mesh_domain_row(args.mesh_domain, args.repeats)
+        return mesh_domain_row(args.mesh_domain, args.repeats, args.solve)
     rows = [run(args.dim, target, args.repeats) for target in args.sizes]
     if args.json and comm.rank == 0:
         Path(args.json).write_text(json.dumps(rows, indent=1))
