@@ -1,4 +1,5 @@
-"""Checkpoints of curved meshes of any degree: VTKHDF, facet-tag sidecar; adios4dolfinx optional."""
+"""Checkpoints of curved meshes of any degree (VTKHDF, facet-tag sidecar; adios4dolfinx
+optional), and their redistribution over the ranks."""
 
 # write_mesh / read_mesh store a triangle or tetrahedron mesh with a degree-k Lagrange
 # coordinate element in DOLFINx's own VTKHDF format (dolfinx.io.vtkhdf; ParaView reads it).
@@ -327,16 +328,31 @@ def redistribute(
     mesh
         A triangle or tetrahedron mesh with one Lagrange coordinate element.
     facet_tags
-        Its facet tags (optional).
+        Its facet tags, integer values (optional).
 
     Returns
     -------
     mesh
-        The redistributed mesh (on one rank: a copy).
+        The redistributed mesh (on one rank: a copy), with the name of ``mesh``.
     facet_tags
-        Its facet tags, the same facets and values, or ``None`` without ``facet_tags``.
+        Its facet tags, the same facets, values (int32) and name, or ``None`` without
+        ``facet_tags``.
+
+    Raises
+    ------
+    ValueError
+        If the mesh has another cell type or more than one coordinate element, or the tags
+        are not of its facets or not integers.
     """
     _check_cells(mesh, "redistribute")
+    if facet_tags is not None and (
+        facet_tags.dim != mesh.topology.dim - 1
+        or not np.issubdtype(facet_tags.values.dtype, np.integer)
+    ):
+        raise ValueError(
+            f"redistribute: facet_tags must tag facets (dimension {mesh.topology.dim - 1}) "
+            f"with integers, got dimension {facet_tags.dim} and {facet_tags.values.dtype}"
+        )
     comm, tdim, gdim = mesh.comm, mesh.topology.dim, mesh.geometry.dim
     imap = mesh.geometry.index_map()
     dofmap = mesh.geometry.dofmaps[0]
@@ -356,6 +372,7 @@ def redistribute(
         np.ascontiguousarray(mesh.geometry.x[: imap.size_local, :gdim]),
         partitioner=ghosted_partitioner() if comm.size > 1 else None,
     )
+    new.name = mesh.name
     if facet_tags is None:
         return new, None
     # Each owned tagged facet by the global nodes of its closure in one of its cells (the
@@ -379,6 +396,7 @@ def redistribute(
     tags = dmesh.meshtags_from_entities(
         new, tdim - 1, graph.adjacencylist(entities), tag_values.astype(np.int32, copy=False)
     )
+    tags.name = facet_tags.name
     return new, tags
 
 

@@ -299,6 +299,10 @@ def test_redistribute_triangles(meshes, name):
         assert comm.allreduce(msh.topology.index_map(2).num_ghosts) > 0  # shared-facet ghosts
     alone, none = duio.redistribute(cv.mesh)
     assert none is None and alone.topology.index_map(2).size_global == a["num_cells"]
+    assert tags.name == cv.facet_tags.name and msh.name == cv.mesh.name
+    cells = dmesh.meshtags(cv.mesh, 2, np.zeros(0, np.int32), np.zeros(0, np.int32))
+    with pytest.raises(ValueError, match="must tag facets"):
+        duio.redistribute(cv.mesh, cells)
 
 
 @pytest.mark.mpi
