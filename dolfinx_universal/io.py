@@ -295,17 +295,33 @@ def read_mesh(
     cell_x = np.einsum("pj,cjd->cpd", phi, raw.geometry.x[dofmap, :gdim])
     x = np.empty((imap.size_local + imap.num_ghosts, gdim))
     x[dofmap.ravel()] = cell_x.reshape(-1, gdim)  # shared nodes agree to rounding
-    num_cells = raw.topology.index_map(tdim).size_local
+    msh = _recreate(raw, x, variant)
+    return msh, _tags_from_file(raw, msh, tags_path(filename))
+
+
+def _recreate(msh: dmesh.Mesh, x: npt.NDArray[np.float64], variant: basix.LagrangeVariant):
+    """A mesh with the cells of ``msh`` and node coordinates ``x`` (one row per local
+    geometry node of ``msh``, ``gdim`` columns), coordinate element of ``msh``'s degree
+    and ``variant``, partitioned by DOLFINx's graph partitioner with shared-facet ghosts
+    (collective). The global node numbers of ``msh`` are the new mesh's input indices."""
+    tdim, gdim = msh.topology.dim, x.shape[1]
+    imap = msh.geometry.index_map()
+    dofmap = msh.geometry.dofmaps[0]
+    num_cells = msh.topology.index_map(tdim).size_local
+    # Rows of a geometry dofmap follow the coordinate element's node order: the same global
+    # node numbers give the same cells (the width, not -1: a rank may hold no cells).
     cells = imap.local_to_global(dofmap[:num_cells].ravel()).reshape(num_cells, dofmap.shape[1])
+    cell = msh.topology.cell_type.name
+    degree = msh.geometry.cmaps[0].degree
     element = basix.ufl.element("Lagrange", cell, degree, shape=(gdim,), lagrange_variant=variant)
-    msh = dmesh.create_mesh(
+    comm = msh.comm
+    return dmesh.create_mesh(
         comm,
         cells.astype(np.int64),
         element,
         np.ascontiguousarray(x[: imap.size_local]),
         partitioner=ghosted_partitioner() if comm.size > 1 else None,
     )
-    return msh, _tags_from_file(raw, msh, tags_path(filename))
 
 
 def redistribute(
@@ -353,25 +369,8 @@ def redistribute(
             f"redistribute: facet_tags must tag facets (dimension {mesh.topology.dim - 1}) "
             f"with integers, got dimension {facet_tags.dim} and {facet_tags.values.dtype}"
         )
-    comm, tdim, gdim = mesh.comm, mesh.topology.dim, mesh.geometry.dim
-    imap = mesh.geometry.index_map()
-    dofmap = mesh.geometry.dofmaps[0]
-    num_cells = mesh.topology.index_map(tdim).size_local
-    # Rows of a geometry dofmap follow the coordinate element's node order: the same global
-    # node numbers (the input indices of the new mesh) give the same cells.
-    cells = imap.local_to_global(dofmap[:num_cells].ravel()).reshape(num_cells, dofmap.shape[1])
-    cmap = mesh.geometry.cmaps[0]
-    cell = mesh.topology.cell_type.name
-    element = basix.ufl.element(
-        "Lagrange", cell, cmap.degree, shape=(gdim,), lagrange_variant=_variant(mesh)
-    )
-    new = dmesh.create_mesh(
-        comm,
-        cells.astype(np.int64),
-        element,
-        np.ascontiguousarray(mesh.geometry.x[: imap.size_local, :gdim]),
-        partitioner=ghosted_partitioner() if comm.size > 1 else None,
-    )
+    tdim = mesh.topology.dim
+    new = _recreate(mesh, mesh.geometry.x[:, : mesh.geometry.dim], _variant(mesh))
     new.name = mesh.name
     if facet_tags is None:
         return new, None
@@ -385,9 +384,10 @@ def redistribute(
     f2c, c2f = top.connectivity(tdim - 1, tdim), top.connectivity(tdim, tdim - 1)
     cell_of = f2c.array[f2c.offsets[facets]]
     local = np.argmax(c2f.array.reshape(-1, tdim + 1)[cell_of] == facets[:, None], axis=1)
-    layout = cmap.create_dof_layout()
+    layout = mesh.geometry.cmaps[0].create_dof_layout()
     closure = np.array([layout.entity_closure_dofs(tdim - 1, i) for i in range(tdim + 1)])
-    nodes = dofmap[cell_of[:, None], closure[local]]
+    nodes = mesh.geometry.dofmaps[0][cell_of[:, None], closure[local]]
+    imap = mesh.geometry.index_map()
     glob = imap.local_to_global(nodes.ravel().astype(np.int32)).reshape(nodes.shape)
     entities, tag_values = distribute_entity_data(
         new, tdim - 1, glob.astype(np.int64), values.astype(np.int32)
