@@ -23,7 +23,7 @@ from ._geometry import Bool, Float, any_rows, lagrange_element
 from .classify import positively_cut
 from .conform import IMMERSED, ConformingMesh
 from .dimensions import cell_kernels
-from .jacobian import jacobian_bounds
+from .jacobian import check_degree, jacobian_bounds
 from .validation import Problem, collective_call, raise_collective
 
 __all__ = [
@@ -355,7 +355,9 @@ def curved_mesh(
     cm
         Straight conforming mesh from :func:`~dolfinx_universal.conform.conform`.
     degree
-        Geometry degree ``q >= 1``. ``degree = 1`` returns a copy of the straight mesh.
+        Geometry degree ``q >= 1``, at most :data:`~dolfinx_universal.jacobian.MAX_DEGREE`
+        (7 for triangles, 5 for tetrahedra). ``degree = 1`` returns a copy of the straight
+        mesh.
     map
         One of :data:`MAPS`.
     min_ratio
@@ -366,6 +368,8 @@ def curved_mesh(
     ------
     MeshingError
         If a curved cell is inverted (its Jacobian determinant changes sign).
+    ValueError
+        If the degree is not an integer from 1 to the limit above, or the map is unknown.
     """
     if not isinstance(cm, ConformingMesh):
         raise TypeError(
@@ -375,9 +379,8 @@ def curved_mesh(
         )
     if map not in MAPS:
         raise ValueError(f"unknown map {map!r}: choose one of {MAPS}")
-    if int(degree) != degree or degree < 1:
-        raise ValueError(f"geometry degree must be an integer >= 1, got {degree}")
     tdim = cm.mesh.topology.dim
+    degree = check_degree(degree, tdim)
     kernels = cell_kernels(tdim)
     kind = "G" if map in ("I", "G") else "G~"
     ce = fem.coordinate_element(kernels.cell_type, degree, basix.LagrangeVariant.gll_warped)

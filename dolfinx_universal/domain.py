@@ -22,6 +22,7 @@ from .curved import MAPS, CurvedMesh, curved_mesh
 from .dimensions import cell_kernels
 from .graded import EDGE_FACTOR, graded_mesh
 from .graded_tet import BandSizeField
+from .jacobian import check_degree
 from .quality import quality_report
 from .sizing import SizeField, SizeFunction, _MinSize, feature_size, target_sizes
 from .validation import MeshingError, collective_call, where
@@ -407,7 +408,8 @@ def mesh_domain(
         alike (:func:`~dolfinx_universal.curved.curved_mesh`): the cells along Gamma are
         curved, their nodes on Gamma lie on it, and where a curved cell is not proven valid
         (``det J / det J_straight > 0`` by Bernstein bounds) the background is refined near
-        it like after any other failed check.
+        it like after any other failed check. At most
+        :data:`~dolfinx_universal.jacobian.MAX_DEGREE` (7 for curves, 5 for surfaces).
     map
         Curved map, one of :data:`~dolfinx_universal.curved.MAPS`; default
         :data:`DEFAULT_MAP`: ``"I"`` for curves, ``"I~"`` for surfaces (measured margins
@@ -473,8 +475,8 @@ def mesh_domain(
     h = float(h)
     if not (h > 0 and math.isfinite(h)):
         raise ValueError(f"h must be positive and finite, got {h}")
-    if int(degree) != degree or degree < 1:
-        raise ValueError(f"geometry degree must be an integer >= 1, got {degree}")
+    gdim = 3 if getattr(boundary, "gdim", 2) == 3 else 2
+    degree = check_degree(degree, gdim)
     if map is None:
         map = DEFAULT_MAP[3 if getattr(boundary, "gdim", 2) == 3 else 2]
     if map not in MAPS:

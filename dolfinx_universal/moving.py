@@ -24,6 +24,7 @@ from .boundaries import Boundary
 from .classify import interior_angles, positively_cut
 from .conform import UniversalMesh
 from .curved import MAPS, jacobian_ratio, map_nodes
+from .jacobian import check_degree
 from .quality import cell_quality, edge_ratio, radius_ratio
 from .validation import (
     MeshingError,
@@ -108,7 +109,8 @@ class MovingDomain:
     background
         Degree-1 background mesh (shared-facet ghosts), acute near every position of Gamma.
     degree
-        Geometry degree ``q``.
+        Geometry degree ``q``, at most :data:`~dolfinx_universal.jacobian.MAX_DEGREE` (7 for
+        triangles, 5 for tetrahedra: the validity proof's limit).
     map
         ``"I"``/``"G"`` (blend ``G_h``) or ``"I~"``/``"G~"`` (``G~_h``); see
         :data:`~dolfinx_universal.curved.MAPS`.
@@ -132,6 +134,7 @@ class MovingDomain:
     ):
         if map not in MAPS:
             raise ValueError(f"unknown map {map!r}: choose one of {MAPS}")
+        degree = check_degree(degree, background.topology.dim)
         self.universal = UniversalMesh(background, **options)
         self.refinement_rounds = 0
         """Local refinements made by :meth:`from_motion` (0 otherwise)."""

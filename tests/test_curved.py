@@ -203,3 +203,17 @@ def test_poisson_optimal_rates(k, map_, extra):
     r1 = np.polyfit(np.log(hs[1:]), np.log(h1s[1:]), 1)[0]
     assert r2 > k + 1 - 0.15, (hs, l2s)
     assert r1 > k - 0.15, (hs, h1s)
+
+
+def test_degrees_above_the_proofs_limit_are_refused(disc):
+    """Degree 8 triangles (MAX_DEGREE is 7 for them): a clear error from curved_mesh,
+    MovingDomain and mesh_domain, before any work. At degree 15 the proof's rounding had
+    reported valid curved triangles of a disc as inverted (test_jacobian gives the reason)."""
+    match = "geometry degree 8 is above 7, the highest for triangles"
+    with pytest.raises(ValueError, match=match):
+        du.curved_mesh(disc, 8)
+    with pytest.raises(ValueError, match=match):
+        du.MovingDomain(disc.background, degree=8)
+    with pytest.raises(ValueError, match=match):
+        du.mesh_domain(MPI.COMM_WORLD, du.Circle([0.0, 0.0], 0.5), 0.2, degree=8)
+    assert du.curved_mesh(disc, 7).min_jacobian_ratio > 0.5

@@ -245,6 +245,21 @@ def test_min_ratio_threshold(conformed):
         du.curved_mesh(cm, 3, "G~", min_ratio=0.999)
 
 
+def test_degrees_above_the_proofs_limit_are_refused_everywhere(conformed):
+    """Degree 6 tetrahedra (MAX_DEGREE is 5 for them) get a clear error from every entry
+    point, before any work: one degree more would take 3 s to set up the proof and lose its
+    accuracy (test_jacobian)."""
+    cm = conformed("sphere")
+    match = "geometry degree 6 is above 5, the highest for tetrahedra"
+    with pytest.raises(ValueError, match=match):
+        du.curved_mesh(cm, 6)
+    with pytest.raises(ValueError, match=match):
+        du.MovingDomain(cm.background, degree=6)
+    with pytest.raises(ValueError, match=match):
+        du.mesh_domain(MPI.COMM_WORLD, du.Sphere(C, 0.7), 0.3, degree=6)
+    assert du.curved_mesh(cm, 5).degree == 5
+
+
 def _fingerprint(x: np.ndarray) -> np.ndarray:
     return x[np.lexsort(np.round(x, 9).T[::-1])]
 
