@@ -70,9 +70,18 @@ def _native(obj: object, cls: type, *names: str) -> bool:
     return all(getattr(type(obj), n) is getattr(cls, n) for n in names)
 
 
-def _call(fn: ArrayFn, arg: Float, shape: tuple[int, ...]) -> Float:
-    """``fn(arg)`` as a float64 array of the given shape (scalars are broadcast)."""
-    return np.broadcast_to(np.asarray(fn(arg), dtype=np.float64), shape).copy()
+def _call(fn: ArrayFn, arg: Float, shape: tuple[int, ...], name: str = "") -> Float:
+    """``fn(arg)`` as a float64 array of the given shape (scalars are broadcast); a
+    ``ValueError`` naming ``name`` (or the function) if its result has another shape."""
+    value = np.asarray(fn(arg), dtype=np.float64)
+    try:
+        return np.broadcast_to(value, shape).copy()
+    except ValueError:
+        who = name or getattr(fn, "__name__", "a user function")
+        raise ValueError(
+            f"{who} returned an array of shape {value.shape} for points of shape "
+            f"{np.shape(arg)}: expected shape {shape} (or a scalar)"
+        ) from None
 
 
 def _normd(v: Float) -> Float:
@@ -946,14 +955,14 @@ class ImplicitCurve(Boundary):
         self.fd_step = 6e-6 * self._scale
 
     def _s(self, y: Float) -> Float:
-        return self._orient * _call(self._f, y, (len(y),))
+        return self._orient * _call(self._f, y, (len(y),), "phi")
 
     def _g(self, y: Float) -> Float:
-        return self._orient * _call(self._gradf, y, (len(y), 2))
+        return self._orient * _call(self._gradf, y, (len(y), 2), "grad")
 
     def _H(self, y: Float) -> Float:
         if self._hessf is not None:
-            return self._orient * _call(self._hessf, y, (len(y), 2, 2))
+            return self._orient * _call(self._hessf, y, (len(y), 2, 2), "hess")
         e = np.eye(2) * self.fd_step
         H = np.stack([self._g(y + e[j]) - self._g(y - e[j]) for j in (0, 1)], axis=2)
         return (H + H.transpose(0, 2, 1)) / (4 * self.fd_step)

@@ -477,6 +477,18 @@ def mesh_domain(
         raise ValueError(f"h must be positive and finite, got {h}")
     gdim = 3 if getattr(boundary, "gdim", 2) == 3 else 2
     degree = check_degree(degree, gdim)
+    if box is not None:
+        try:
+            box_ok = np.asarray(box, dtype=np.float64)
+            valid = box_ok.shape == (2, gdim) and bool(np.isfinite(box_ok).all())
+            valid = valid and bool((box_ok[1] > box_ok[0]).all())
+        except (TypeError, ValueError):
+            valid = False
+        if not valid:
+            raise ValueError(
+                f"box must be [[min], [max]] with {gdim} finite coordinates each, min < max, "
+                f"got {box!r}"
+            )
     if map is None:
         map = DEFAULT_MAP[3 if getattr(boundary, "gdim", 2) == 3 else 2]
     if map not in MAPS:
@@ -830,6 +842,17 @@ def _tet_plan(
     has fewer than :data:`AUTO_RATIO` times the tetrahedra of the A15 background (counted
     on the octree itself, built once, unless either is estimated above ``max_cells``: then
     the smaller estimate, which :meth:`_Plan.check_size` refuses)."""
+    # Every size is at most h: before Gamma is sampled at h / 4, the box around it needs at
+    # least its volume / h^3 cells (one per cube of side h); the same on every rank.
+    bb = np.asarray(boundary.bounding_box(), dtype=np.float64)
+    least = float(np.prod(bb[1] - bb[0])) / h**3
+    if least > max_cells:
+        raise MeshingError(
+            f"h = {h:.3g} asks for at least {least:.3g} background cells (the box around "
+            f"the boundary, {(bb[1] - bb[0]).tolist()}, in cells of size at most h; more "
+            f"than max_cells = {max_cells:.3g}): raise h or max_cells",
+            refinable=False,
+        )
     args = (comm, boundary, h, degree, box, relaxation_factor, size_factor)
     if size_field is not None:  # a uniform background cannot follow a field
         if kind == "a15":

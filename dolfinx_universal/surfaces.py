@@ -660,14 +660,14 @@ class ImplicitSurface(Surface):
 
     # -- evaluations
     def _phi(self, y: Float) -> Float:
-        return _call(self._f, y, (len(y),)) if len(y) else np.zeros(0)
+        return _call(self._f, y, (len(y),), "phi") if len(y) else np.zeros(0)
 
     def _g(self, y: Float) -> Float:
-        return _call(self._gradf, y, (len(y), 3)) if len(y) else np.zeros((0, 3))
+        return _call(self._gradf, y, (len(y), 3), "grad") if len(y) else np.zeros((0, 3))
 
     def _H(self, y: Float) -> Float:
         if self._hessf is not None:
-            return _call(self._hessf, y, (len(y), 3, 3))
+            return _call(self._hessf, y, (len(y), 3, 3), "hess")
         e = np.eye(3) * self.fd_step
         H = np.stack([self._g(y + e[j]) - self._g(y - e[j]) for j in range(3)], axis=2)
         return (H + H.transpose(0, 2, 1)) / (4 * self.fd_step)

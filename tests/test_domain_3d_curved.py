@@ -180,3 +180,19 @@ def test_component_facets():
     assert areas[1] == pytest.approx(np.pi, rel=1e-3)
     (single,) = du.mesh_domain(MPI.COMM_WORLD, outer, 0.4).component_facets()
     assert len(single) > 0
+
+
+def test_bad_box_and_tiny_h_get_clear_errors_at_once():
+    """Found by an adversarial run: a 2D or non-finite box met numpy's reshape error or a
+    "leaves the given box" error, and h = 1e-3 on a ball of radius 0.7 sampled its surface
+    at h / 4 (1e8 points) for over 5 minutes (h = 1e-4: a 73 GiB allocation) before the
+    cell count was checked. Every size is at most h, so the box around Gamma needs at least
+    its volume / h^3 cells: refused before any sampling."""
+    comm = MPI.COMM_WORLD
+    ball = du.Sphere([0.0, 0.0, 0.0], 0.7)
+    for box in ([[-1, -1], [1, 1]], [[np.nan] * 3, [1] * 3], [[1] * 3, [-1] * 3]):
+        with pytest.raises(ValueError, match="box must be"):
+            du.mesh_domain(comm, ball, 0.2, box=box)
+    for kind in ("auto", "a15"):
+        with pytest.raises(du.MeshingError, match=r"h = 0.001 asks for at least 2.74e\+09"):
+            du.mesh_domain(comm, ball, 1e-3, tet_background=kind)

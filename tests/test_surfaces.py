@@ -604,3 +604,15 @@ def test_implicit_two_components() -> None:
     assert imp.area() == pytest.approx(2 * 4 * np.pi * r * r, rel=0.02)
     assert imp.min_radius_of_curvature() == pytest.approx(r, rel=1e-3)
     check_near(imp, x)
+
+
+def test_implicit_surface_functions_of_the_wrong_shape_are_named():
+    """phi returning (n, 1) or grad returning (n, 2) got numpy's broadcasting message."""
+    box = [[-1.0] * 3, [1.0] * 3]
+    x = np.array([[0.7, 0.0, 0.0], [0.0, 0.5, 0.1]])
+    column = ImplicitSurface(lambda y: (y * y).sum(1, keepdims=True) - 0.49, lambda y: 2 * y, box)
+    with pytest.raises(ValueError, match=r"phi returned an array of shape \(2, 1\)"):
+        column.sign(x)
+    flat = ImplicitSurface(lambda y: (y * y).sum(1) - 0.49, lambda y: 2 * y[:, :2], box)
+    with pytest.raises(ValueError, match=r"grad returned an array of shape \(2, 2\)"):
+        flat.normal(x)
