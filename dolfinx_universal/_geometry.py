@@ -61,6 +61,23 @@ def as_points(x: npt.ArrayLike, name: str = "x", dim: int = 2) -> Float:
     return a
 
 
+def as_box(box: npt.ArrayLike, dim: int | None = None) -> Float:
+    """Corners ``[[min], [max]]`` of a box: ``dim`` finite coordinates each (2 or 3 when
+    ``dim`` is None), min < max; a ``ValueError`` that says so otherwise."""
+    try:
+        b = np.asarray(box, dtype=np.float64)
+    except (TypeError, ValueError):
+        b = np.zeros((0,))
+    dims = (2, 3) if dim is None else (dim,)
+    if b.ndim != 2 or b.shape[0] != 2 or b.shape[1] not in dims or not np.isfinite(b).all():
+        form = {2: "[[x0, y0], [x1, y1]]", 3: "[[x0, y0, z0], [x1, y1, z1]]"}
+        want = form[2] + " (or 3D)" if dim is None else form[dim]
+        raise ValueError(f"box must be {want} with finite coordinates, got {box!r}")
+    if not (b[1] > b[0]).all():
+        raise ValueError(f"box must be given with its lower corner first, got {b.tolist()}")
+    return b
+
+
 def positive(value: float, name: str) -> float:
     """``value`` as a float, checked positive and finite (``name`` for the error)."""
     value = float(value)

@@ -14,7 +14,7 @@ import numpy as np
 import numpy.typing as npt
 from dolfinx import mesh as dmesh
 
-from ._geometry import Float
+from ._geometry import Float, as_box
 from .background import GRADATION
 from .boundaries import Boundary, Domain
 from .conform import IMMERSED, ConformingMesh, conform
@@ -478,19 +478,9 @@ def mesh_domain(
     gdim = 3 if getattr(boundary, "gdim", 2) == 3 else 2
     degree = check_degree(degree, gdim)
     if box is not None:
-        try:
-            box_ok = np.asarray(box, dtype=np.float64)
-            valid = box_ok.shape == (2, gdim) and bool(np.isfinite(box_ok).all())
-            valid = valid and bool((box_ok[1] > box_ok[0]).all())
-        except (TypeError, ValueError):
-            valid = False
-        if not valid:
-            raise ValueError(
-                f"box must be [[min], [max]] with {gdim} finite coordinates each, min < max, "
-                f"got {box!r}"
-            )
+        as_box(box, gdim)
     if map is None:
-        map = DEFAULT_MAP[3 if getattr(boundary, "gdim", 2) == 3 else 2]
+        map = DEFAULT_MAP[gdim]
     if map not in MAPS:
         raise ValueError(f"unknown map {map!r}: choose one of {MAPS}")
     if size_field is not None and not callable(size_field):
@@ -506,7 +496,7 @@ def mesh_domain(
 
     t = time.perf_counter()
     plan: _Plan
-    if getattr(boundary, "gdim", 2) == 3:
+    if gdim == 3:
         plan = _tet_plan(
             comm, boundary, h, degree, box, relaxation_factor, size_factor, tet_background,
             max_cells, size_field,

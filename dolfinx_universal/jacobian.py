@@ -279,8 +279,9 @@ def jacobian_bounds(
     """
     nodes = np.asarray(nodes, dtype=np.float64)
     m = len(nodes)
-    degree = check_degree(degree, 3 if nodes.ndim == 3 and nodes.shape[2] == 3 else 2)
-    if nodes.ndim == 3 and nodes.shape[2] == 3:  # tetrahedra
+    tetrahedra = nodes.ndim == 3 and nodes.shape[2] == 3
+    degree = check_degree(degree, 3 if tetrahedra else 2)
+    if tetrahedra:
         order = 3 * (degree - 1)
         det0 = _tet.affine_determinant(nodes)
         det = _tet.determinant(nodes, _tet.lattice_derivatives(degree))

@@ -14,7 +14,7 @@ import numpy.typing as npt
 from scipy import ndimage
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
-from ._geometry import Bool, Float, Int, as_points, cross2, norm2, positive, readonly
+from ._geometry import Bool, Float, Int, as_box, as_points, cross2, norm2, positive, readonly
 from .boundaries import Boundary
 
 __all__ = [
@@ -847,12 +847,7 @@ def box_size(
     -------
     The size field, a callable ``(n, gdim) -> (n,)``.
     """
-    b = np.asarray(box, dtype=np.float64)
-    if b.ndim != 2 or b.shape[0] != 2 or b.shape[1] not in (2, 3) or not np.isfinite(b).all():
-        raise ValueError(f"box must be [[x0, y0], [x1, y1]] (or 3D), got {box!r}")
-    if not (b[1] > b[0]).all():
-        raise ValueError(f"box must have its lower corner first, got {b.tolist()}")
-    return _BoxSize(readonly(b), _Ramp(size_in, size_out, 0.0, thickness))
+    return _BoxSize(readonly(as_box(box)), _Ramp(size_in, size_out, 0.0, thickness))
 
 
 class _MinSize:
