@@ -101,17 +101,6 @@ def _unique_rows(rows: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
     return np.unique(rows, axis=0, return_index=True)[1]
 
 
-def _find_rows(table: npt.NDArray[np.int64], rows: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
-    """For each row of ``rows (m, k)``: its index in ``table (n, k)`` (distinct rows), or -1."""
-    both = np.concatenate([table, rows]).reshape(-1, table.shape[1])
-    if len(both) == 0:
-        return np.zeros(0, dtype=np.int64)
-    inverse = np.unique(both, axis=0, return_inverse=True)[1].reshape(-1)
-    lookup = np.full(inverse.max() + 1, -1, dtype=np.int64)
-    lookup[inverse[: len(table)]] = np.arange(len(table))
-    return lookup[inverse[len(table) :]]
-
-
 def write_mesh(
     filename: str | Path, mesh: dmesh.Mesh, facet_tags: dmesh.MeshTags | None = None
 ) -> None:
@@ -188,56 +177,75 @@ def write_mesh(
     comm.barrier()
 
 
+def _closure_rows(msh: dmesh.Mesh, vertex_nodes: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+    """Facets given by the global input indices of their ``tdim`` vertex nodes (any order),
+    as the rows of facet-closure nodes that :func:`dolfinx.io.distribute_entity_data` takes:
+    the vertex nodes at the positions of the vertices in the coordinate element's facet
+    closure (the only columns it reads), the first of them repeated in the other columns."""
+    tdim = msh.topology.dim
+    layout = msh.geometry.cmaps[0].create_dof_layout()
+    closure = list(layout.entity_closure_dofs(tdim - 1, 0))
+    vertex_dofs = [layout.entity_dofs(0, i)[0] for i in range(tdim + 1)]
+    at = [closure.index(d) for d in vertex_dofs if d in closure]
+    rows = np.repeat(vertex_nodes[:, :1], len(closure), axis=1)
+    rows[:, at] = vertex_nodes
+    return rows
+
+
 def _tags_from_file(raw: dmesh.Mesh, msh: dmesh.Mesh, sidecar: Path) -> dmesh.MeshTags | None:
-    """Facet tags of ``msh`` (created from ``raw``) from the sidecar of the file of ``raw``."""
+    """Facet tags of ``msh`` (created from ``raw``) from the sidecar of the file of ``raw``.
+
+    Rank 0 reads the sidecar and scatters its rows in equal parts. DOLFINx's
+    :func:`~dolfinx.io.distribute_entity_data` then carries each facet, given by file node
+    indices (the input indices of ``raw``), to the ranks of ``raw`` that hold its vertices,
+    where they become global node numbers of ``raw``: the input indices of ``msh``, by which
+    a second call carries them to the ranks of ``msh`` that hold the facet. No rank holds
+    more than its share of the tags, except rank 0 while it reads them.
+    """
     comm = msh.comm
     tdim = msh.topology.dim
 
-    def load() -> dict | None:
+    def load() -> tuple[int, int] | None:
         if not sidecar.exists():
             return None
         with np.load(sidecar) as d:
-            return {k: d[k] for k in d.files}
+            return int(d["num_nodes"]), int(d["dim"])
 
-    data = _on_root(comm, load)
-    if data is None:
+    header = _on_root(comm, load)
+    if header is None:
         return None
     imap = raw.geometry.index_map()
     n = imap.size_global
-    if int(data["num_nodes"]) != n or int(data["dim"]) != tdim - 1:
+    if header != (n, tdim - 1):
         raise ValueError(
-            f"{sidecar} does not belong to its mesh file ({int(data['num_nodes'])} nodes of "
-            f"facets of dimension {int(data['dim'])} recorded, {n} nodes of a {tdim}D mesh read)"
+            f"{sidecar} does not belong to its mesh file ({header[0]} nodes of facets of "
+            f"dimension {header[1]} recorded, {n} nodes of a {tdim}D mesh read)"
         )
-    # File node index -> global node index of `raw` (= the input index of `msh`), translated
-    # on the ranks that hold all vertices of a facet; every tagged facet lies on one.
-    nloc = imap.size_local + imap.num_ghosts
-    file_idx = np.asarray(raw.geometry.input_global_indices, dtype=np.int64)[:nloc]
-    order = np.argsort(file_idx)
-    sorted_idx = file_idx[order]
-    wanted = np.asarray(data["vertices"], dtype=np.int64).reshape(-1, tdim)
-    pos = np.minimum(np.searchsorted(sorted_idx, wanted), max(len(sorted_idx) - 1, 0))
-    here = (
-        np.all(sorted_idx[pos] == wanted, axis=1)
-        if len(sorted_idx)
-        else np.zeros(len(wanted), bool)
+    parts = None
+    if comm.rank == 0:
+        with np.load(sidecar) as d:
+            rows = np.asarray(d["vertices"], dtype=np.int64).reshape(-1, tdim)
+            values = np.asarray(d["values"])
+        cuts = np.linspace(0, len(rows), comm.size + 1).astype(np.int64)
+        parts = [(rows[a:b], values[a:b]) for a, b in zip(cuts[:-1], cuts[1:])]
+    rows, values = comm.scatter(parts, root=0)
+    dtype = values.dtype  # carried as int64 or float64 (int8 tags have no binding)
+    carrier = np.int64 if np.issubdtype(dtype, np.integer) else np.float64
+    # File node indices -> local vertices of `raw` -> global node numbers of `raw`.
+    verts, values = distribute_entity_data(
+        raw, tdim - 1, _closure_rows(raw, rows), values.astype(carrier)
     )
-    glob = imap.local_to_global(order[pos[here]].ravel().astype(np.int32)).reshape(-1, tdim)
-    found = comm.allgather((np.sort(glob.astype(np.int64), axis=1), data["values"][here]))
-    rows = np.concatenate([f[0] for f in found]).reshape(-1, tdim)
-    values = np.concatenate([f[1] for f in found]).astype(data["values"].dtype)
-    first = _unique_rows(rows)
-    rows, values = rows[first], values[first]
-
+    verts = np.asarray(verts, dtype=np.int32).reshape(-1, tdim)
+    raw.topology.create_connectivity(0, tdim)
+    nodes = dmesh.entities_to_geometry(raw, 0, verts.ravel()).reshape(-1)
+    glob = imap.local_to_global(nodes.astype(np.int32)).reshape(-1, tdim).astype(np.int64)
+    # Global node numbers of `raw` (input indices of `msh`) -> facets of `msh`.
+    entities, values = distribute_entity_data(msh, tdim - 1, _closure_rows(msh, glob), values)
     msh.topology.create_entities(tdim - 1)
-    fmap = msh.topology.index_map(tdim - 1)
-    facets = np.arange(fmap.size_local + fmap.num_ghosts, dtype=np.int32)
-    nodes = _facet_vertex_nodes(msh, facets)
-    inp = np.asarray(msh.geometry.input_global_indices, dtype=np.int64)
-    frows = np.sort(inp[nodes.ravel()].reshape(-1, tdim), axis=1)
-    index = _find_rows(rows, frows)
-    hit = index >= 0
-    return dmesh.meshtags(msh, tdim - 1, facets[hit], values[index[hit]])
+    msh.topology.create_connectivity(tdim - 1, tdim)
+    return dmesh.meshtags_from_entities(
+        msh, tdim - 1, graph.adjacencylist(entities), np.asarray(values).astype(dtype)
+    )
 
 
 def read_mesh(

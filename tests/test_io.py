@@ -270,6 +270,41 @@ def test_tetrahedra_sidecar_checks(tet_meshes, meshes, mpi_tmp_path):
         duio.read_mesh(comm, mpi_tmp_path / "tet.vtkhdf")
 
 
+@pytest.mark.mpi
+@pytest.mark.parametrize("dtype", [np.int64, np.float64])
+def test_tags_of_owned_and_ghost_facets_any_value_type(meshes, mpi_tmp_path, dtype):
+    """Every facet a rank holds after read_mesh, owned or ghost, carries the value written
+    for it (found by its midpoint), of the written type: int64 values beyond the int32 range
+    and non-integer floats come back exactly (the sidecar's rows travel in parts to the
+    ranks that hold the facets, not to every rank)."""
+    cv = meshes["holed3"]
+    base = cv.facet_tags
+    values = base.values.astype(dtype) * (2**40 + 1 if dtype == np.int64 else 0.3)
+    tags0 = dmesh.meshtags(cv.mesh, 1, base.indices, values)
+    filename = mpi_tmp_path / f"typed_{np.dtype(dtype).name}.vtkhdf"
+    duio.write_mesh(filename, cv.mesh, tags0)
+    msh, tags = duio.read_mesh(comm, filename)
+    assert tags is not None and tags.values.dtype == dtype
+
+    def midpoints(m, facets):
+        m.topology.create_connectivity(1, 2)
+        return m.geometry.x[dmesh.entities_to_geometry(m, 1, facets), :2].mean(axis=1)
+
+    written = comm.allgather((midpoints(cv.mesh, tags0.indices), tags0.values))
+    wx = np.concatenate([w[0] for w in written])
+    wv = np.concatenate([w[1] for w in written])
+    fmap = msh.topology.index_map(1)
+    every = np.arange(fmap.size_local + fmap.num_ghosts, dtype=np.int32)
+    dist, near = cKDTree(wx).query(midpoints(msh, every))
+    hit = dist < 1e-12  # a facet of the file's tags (midpoints of curved edges agree to 1e-15)
+    assert np.array_equal(np.sort(tags.indices), every[hit])
+    found = np.empty(len(every), dtype=dtype)
+    found[tags.indices] = tags.values
+    assert np.array_equal(found[hit], wv[near[hit]])
+    if comm.size > 1:  # ghosts among them somewhere
+        assert comm.allreduce(int(np.count_nonzero(every[hit] >= fmap.size_local))) > 0
+
+
 def dmesh_meshtags(msh, dim: int):
     from dolfinx import mesh as dmesh
 
