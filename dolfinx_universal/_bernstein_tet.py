@@ -23,7 +23,6 @@ __all__ = [
     "bernstein_indices",
     "control_points",
     "determinant",
-    "inverse_collocation",
     "lattice_derivatives",
     "subdivision",
 ]
@@ -92,12 +91,6 @@ def bernstein_basis(order: int, points: Float) -> Float:
     lam = np.column_stack([1.0 - points.sum(axis=1), points])
     mult = np.array([factorial(order) / np.prod([factorial(a) for a in r]) for r in alpha])
     return mult * np.prod(lam[:, None, :] ** alpha[None, :, :], axis=2)
-
-
-@lru_cache(maxsize=16)
-def inverse_collocation(order: int) -> Float:
-    """Inverse of the Bernstein collocation matrix at the control points, ``(nb, nb)``."""
-    return readonly(np.linalg.inv(bernstein_basis(order, control_points(order))))
 
 
 @lru_cache(maxsize=16)

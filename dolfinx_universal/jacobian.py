@@ -7,6 +7,7 @@ from functools import lru_cache
 from math import factorial
 
 import numpy as np
+from scipy.linalg import lu_factor, lu_solve
 
 from . import _bernstein_tet as _tet
 from ._geometry import Float, Int, lagrange_element, readonly
@@ -24,15 +25,57 @@ __all__ = [
 
 MAX_DEGREE = {2: 7, 3: 5}
 """The highest geometry degree ``q`` per topological dimension whose validity proof is
-reliable. The Bernstein coefficients of ``det J`` (degree ``tdim (q - 1)``) come from its
-values at the control points through the inverse of the collocation matrix, whose condition
+accurate. The Bernstein coefficients of ``det J`` (degree ``tdim (q - 1)``) come from its
+values at the control points (``_ToBernstein``); the condition of that change of basis
 grows about sevenfold per degree for triangles and twentyfold for tetrahedra. Measured (a
-random polynomial with coefficients in [0.5, 1.5], its coefficients recovered from its values):
-the largest error is 2.6e-13 at q = 5 and 1.3e-9 at q = 7 for triangles, 4.8e-12 at q = 4 and
-2.8e-9 at q = 5 for tetrahedra, far below the margins the checks decide; the next degrees
-give 5.6e-8 and 1.7e-6, and at q = 15 (triangles) or 8 (tetrahedra) the coefficients are
-wrong by more than their size: valid cells were reported inverted. Tetrahedra of degree 6
-to 8 also cost 3 to 50 s and up to 0.5 GB to set up the subdivision operators."""
+random polynomial with coefficients in [0.5, 1.5], its coefficients recovered from its
+values, on six kinds of CPU kernels): at most 1.6e-11 at q = 7 for triangles and 2.8e-11 at
+q = 5 for tetrahedra. Beyond the limits the error grows fast (triangles q = 8 to 11: 1.1e-10,
+6.6e-10, 4.3e-9, 3.8e-8; tetrahedra q = 6 to 8: 5.7e-10, 7.5e-9, 1.6e-7), and tetrahedra of
+degree 6 to 8 cost 3 to 50 s and up to 0.5 GB to set up the subdivision operators."""
+
+
+_INVERSE_UP_TO = 6e3
+"""Largest row sum of the inverse collocation matrix for which ``_ToBernstein``
+multiplies by the inverse: triangles up to q = 5 (row sum 1083; 7508 at q = 6), tetrahedra
+up to q = 4 (4868; 98330 at q = 5). A product with the inverse sums terms up to that size
+into values of size 1: measured 1.3e-12 (triangles, q = 5) and 1.7e-11 (tetrahedra, q = 4)
+at most. Beyond it the explicit inverse lost up to 6e-9 (tetrahedra, q = 5, depending on the
+CPU kernel), and the LU factors solve instead: 3e-11 at most, the condition of the change of
+basis times the rounding of the values, at 1.6 to 2 times the cost of the product."""
+
+
+class _ToBernstein:
+    """Values of polynomials at the Bernstein control points -> their Bernstein coefficients.
+
+    ``coefficients = _ToBernstein(B)(values)`` solves ``B c = v`` for every row of
+    ``values (m, nb)``, with ``B (nb, nb)`` the Bernstein basis at the control points: by
+    the explicit inverse where its rows sum to at most ``_INVERSE_UP_TO`` (a matrix
+    product, the fastest), else by the LU factors (backward stable: the error is then the
+    change of basis's own condition times the rounding of the values).
+    """
+
+    def __init__(self, collocation: Float) -> None:
+        inverse = np.linalg.inv(collocation)
+        small = np.abs(inverse).sum(axis=1).max() <= _INVERSE_UP_TO
+        self.inverse_t = readonly(np.ascontiguousarray(inverse.T)) if small else None
+        self.lu = None if small else lu_factor(collocation)
+
+    def __call__(self, values: Float) -> Float:
+        """The coefficients ``(m, nb)`` of the rows of ``values (m, nb)``."""
+        if self.inverse_t is not None:
+            return values @ self.inverse_t
+        # (nb, m) Fortran-ordered in and out: its transpose is the C-ordered (m, nb)
+        return lu_solve(self.lu, values.T, check_finite=False).T
+
+
+@lru_cache(maxsize=16)
+def _to_bernstein(tdim: int, order: int) -> _ToBernstein:
+    """The ``_ToBernstein`` of degree ``order`` on the reference triangle (``tdim = 2``)
+    or tetrahedron (``tdim = 3``), at the control points of :func:`bernstein_basis`."""
+    if tdim == 2:
+        return _ToBernstein(bernstein_basis(order, _control_points(order)))
+    return _ToBernstein(_tet.bernstein_basis(order, _tet.control_points(order)))
 
 
 def check_degree(degree: float, tdim: int) -> int:
@@ -51,7 +94,8 @@ def check_degree(degree: float, tdim: int) -> int:
         raise ValueError(
             f"geometry degree {int(degree)} is above {top}, the highest for {cells}: the "
             f"proof that curved cells are valid (Bernstein coefficients of det J, of degree "
-            f"{tdim}(q - 1)) loses its accuracy to rounding beyond it"
+            f"{tdim}(q - 1)) is accurate to about 1e-11 up to it and loses accuracy to "
+            f"rounding fast beyond it"
         )
     return int(degree)
 
@@ -102,15 +146,6 @@ def bernstein_basis(order: int, points: Float) -> Float:
     lam = np.column_stack([1.0 - points[:, 0] - points[:, 1], points[:, 0], points[:, 1]])
     mult = np.array([factorial(order) / np.prod([factorial(a) for a in r]) for r in alpha])
     return mult * np.prod(lam[:, None, :] ** alpha[None, :, :], axis=2)
-
-
-@lru_cache(maxsize=16)
-def _inverse_collocation(order: int) -> Float:
-    """Inverse of the Bernstein collocation matrix at the control points, ``(nb, nb)``.
-
-    Its condition number is 2.6, 13, 80, 515 for ``order`` 2, 4, 6, 8 (geometry degree 2-5).
-    """
-    return readonly(np.linalg.inv(bernstein_basis(order, _control_points(order))))
 
 
 def _casteljau_step(order: int, w: Float) -> Float:
@@ -213,7 +248,7 @@ def bernstein_coefficients(nodes: Float, degree: int) -> Float:
     The coefficients ``c``, ``(m, nb)`` with ``nb = (d + 1)(d + 2) / 2``.
     """
     det = _determinant(np.asarray(nodes, dtype=np.float64), _lattice_derivatives(degree))
-    return det @ _inverse_collocation(2 * (degree - 1)).T
+    return _to_bernstein(2, 2 * (degree - 1))(det)
 
 
 def jacobian_bounds(
@@ -246,8 +281,8 @@ def jacobian_bounds(
     level on the undecided leaves only; ``rtol=np.inf`` decides ``threshold`` and nothing more.
 
     The bounds are exact up to rounding, which grows with the degree (:data:`MAX_DEGREE`:
-    about ``1e-13`` relative to the largest ratio up to q = 5 for triangles and q = 4 for
-    tetrahedra, about ``1e-9`` at the highest degrees allowed).
+    about ``1e-13`` relative to the largest ratio up to q = 5 for triangles and q = 3 for
+    tetrahedra, about ``1e-11`` above them, up to the highest degrees allowed).
     Cells whose vertices are collinear or coplanar (``det J_affine = 0``) or whose nodes are
     not finite get ``-inf`` for both.
 
@@ -285,7 +320,7 @@ def jacobian_bounds(
         order = 3 * (degree - 1)
         det0 = _tet.affine_determinant(nodes)
         det = _tet.determinant(nodes, _tet.lattice_derivatives(degree))
-        inverse, split, nchildren = _tet.inverse_collocation(order), _tet.subdivision(order), 8
+        split, nchildren = _tet.subdivision(order), 8
         max_depth = 6 if max_depth is None else max_depth
     else:
         order = 2 * (degree - 1)
@@ -294,7 +329,7 @@ def jacobian_bounds(
             p[:, 1, 1] - p[:, 0, 1]
         )
         det = _determinant(nodes, _lattice_derivatives(degree))  # (m, nb) at the control points
-        inverse, split, nchildren = _inverse_collocation(order), _subdivision(order), 4
+        split, nchildren = _subdivision(order), 4
         max_depth = 8 if max_depth is None else max_depth
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = det / det0[:, None]
@@ -304,7 +339,7 @@ def jacobian_bounds(
     upper = ratio.min(axis=1)
     lower = np.full(m, np.inf)
     cell = np.arange(m)  # the cell of each leaf
-    coef = ratio @ inverse.T  # (leaves, nb)
+    coef = _to_bernstein(3 if tetrahedra else 2, order)(ratio)  # (leaves, nb)
     nb = split.shape[0]
     for depth in range(max_depth + 1):
         low = coef.min(axis=1)
