@@ -29,7 +29,7 @@ accurate. The Bernstein coefficients of ``det J`` (degree ``tdim (q - 1)``) come
 values at the control points (``_ToBernstein``); the condition of that change of basis
 grows about sevenfold per degree for triangles and twentyfold for tetrahedra. Measured (a
 random polynomial with coefficients in [0.5, 1.5], its coefficients recovered from its
-values, on six kinds of CPU kernels): at most 1.6e-11 at q = 7 for triangles and 2.8e-11 at
+values, on five OpenBLAS core types): at most 1.6e-11 at q = 7 for triangles and 2.8e-11 at
 q = 5 for tetrahedra. Beyond the limits the error grows fast (triangles q = 8 to 11: 1.1e-10,
 6.6e-10, 4.3e-9, 3.8e-8; tetrahedra q = 6 to 8: 5.7e-10, 7.5e-9, 1.6e-7), and tetrahedra of
 degree 6 to 8 cost 3 to 50 s and up to 0.5 GB to set up the subdivision operators."""

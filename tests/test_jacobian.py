@@ -342,9 +342,9 @@ def test_tet_many_cells_adaptive(degree):
 def test_change_of_basis_is_accurate_up_to_the_highest_degree(tdim):
     """At every degree allowed (MAX_DEGREE) the Bernstein coefficients of a known polynomial
     come back from its values at the control points to 2e-10, on any CPU: measured at most
-    1.6e-11 (triangles, q = 7) and 2.8e-11 (tetrahedra, q = 5) with six kinds of OpenBLAS
-    kernels. Multiplying by the explicit inverse there, as before, lost 8.7e-10 to 6.0e-9
-    depending on the kernel: 2e-10 tells the two apart on every one of them."""
+    1.6e-11 (triangles, q = 7) and 2.8e-11 (tetrahedra, q = 5) with five OpenBLAS core types
+    (Zen uses Haswell's). Multiplying by the explicit inverse there, as before, lost 8.7e-10
+    to 6.0e-9 depending on the kernel: 2e-10 tells the two apart on every one of them."""
     rng = np.random.default_rng(tdim)
     errors = {}
     for q in range(2, MAX_DEGREE[tdim] + 1):
