@@ -37,6 +37,7 @@ Usage::
 
     python benchmarks/dfg_vs_gmsh.py [--levels 0 1 2 3 4] [--out FILE]
     python benchmarks/dfg_vs_gmsh.py --quick       # level 0 only (about 1e4 dofs)
+    python benchmarks/dfg_vs_gmsh.py --spread 2    # six sizes around level 2 (SPREAD)
 """
 
 from __future__ import annotations
@@ -269,61 +270,130 @@ def matched_mesh(family: str, target: int, scale: float):
 
 
 # ----------------------------------------------------------------------------- study
-def run(levels: list[int]) -> list[dict]:
-    # The adaptive loop once, past the largest gmsh mesh (its dofs ~ 1e4 (0.72 / factor)^2).
-    most = 1.3e4 * (FACTORS[0] / FACTORS[max(levels)]) ** 2
+def _adaptive_past(most: float) -> None:
+    """The adaptive loop once, past ``most`` dofs (its rounds for :func:`matched_adaptive`)."""
     adaptive_rows, rounds, _ = demo.adaptive_study(most, keep=True)
     ADAPTIVE["dofs"] = [r["n_dofs"] for r in adaptive_rows]
     ADAPTIVE["rounds"] = rounds
+
+
+def _rows_at(
+    level: int, factor: float, variants, families, guesses: dict[str, float]
+) -> list[dict]:
+    """Each gmsh variant at ``factor`` and the universal ``families`` at its dofs, solved."""
     rows = []
-    guesses = {family: 1.0 for family in FAMILIES}
-    for level in levels:
-        factor = FACTORS[level]
-        for variant in VARIANTS:
-            msh, outer, cylinder, times = gmsh_mesh(variant, factor)
-            q, _ = demo.solve(msh, outer, cylinder, f"gmsh_{level}_{variant}")
+    for variant in variants:
+        msh, outer, cylinder, times = gmsh_mesh(variant, factor)
+        q, _ = demo.solve(msh, outer, cylinder, f"gmsh_{level}_{variant}")
+        row = {
+            "level": level,
+            "variant": variant,
+            "factor": factor,
+            "mesh": "gmsh",
+            **q,
+            **_relative_errors(q),
+            "cylinder_edges": _count_owned(msh, cylinder),
+            "near_share": _near_share(msh),
+            "mesh_s": times["generate_s"] + times["model_to_mesh_s"],
+            **times,
+        }
+        rows.append(row)
+        report(row)
+        for family in families:
+            md, scale, reach, seconds, tries = matched_mesh(family, q["n_dofs"], guesses[family])
+            knob = {"scale": scale, "reach": reach}
+            if family == "adaptive":  # the last step's Doerfler fraction, not a scale
+                knob = {"last_fraction": scale}
+            else:
+                guesses[family] = scale
+            tags = md.facet_tags
+            cyl = tags.find(du.IMMERSED)
+            qu, _ = demo.solve(md.mesh, tags.find(du.OUTER), cyl, f"{family}_{level}_{variant}")
             row = {
                 "level": level,
                 "variant": variant,
                 "factor": factor,
-                "mesh": "gmsh",
-                **q,
-                **_relative_errors(q),
-                "cylinder_edges": _count_owned(msh, cylinder),
-                "near_share": _near_share(msh),
-                "mesh_s": times["generate_s"] + times["model_to_mesh_s"],
-                **times,
+                "mesh": family,
+                **qu,
+                **_relative_errors(qu),
+                "cylinder_edges": _count_owned(md.mesh, cyl),
+                "near_share": _near_share(md.mesh),
+                "mesh_s": seconds,
+                **knob,
+                "search_tries": tries,
             }
             rows.append(row)
             report(row)
-            for family in FAMILIES:
-                md, scale, reach, seconds, tries = matched_mesh(
-                    family, q["n_dofs"], guesses[family]
-                )
-                knob = {"scale": scale, "reach": reach}
-                if family == "adaptive":  # the last step's Doerfler fraction, not a scale
-                    knob = {"last_fraction": scale}
-                else:
-                    guesses[family] = scale
-                tags = md.facet_tags
-                cyl = tags.find(du.IMMERSED)
-                qu, _ = demo.solve(md.mesh, tags.find(du.OUTER), cyl, f"{family}_{level}_{variant}")
-                row = {
-                    "level": level,
-                    "variant": variant,
-                    "factor": factor,
-                    "mesh": family,
-                    **qu,
-                    **_relative_errors(qu),
-                    "cylinder_edges": _count_owned(md.mesh, cyl),
-                    "near_share": _near_share(md.mesh),
-                    "mesh_s": seconds,
-                    **knob,
-                    "search_tries": tries,
-                }
-                rows.append(row)
-                report(row)
     return rows
+
+
+def run(levels: list[int]) -> list[dict]:
+    # The adaptive loop once, past the largest gmsh mesh (its dofs ~ 1e4 (0.72 / factor)^2).
+    _adaptive_past(1.3e4 * (FACTORS[0] / FACTORS[max(levels)]) ** 2)
+    rows = []
+    guesses = {family: 1.0 for family in FAMILIES}
+    for level in levels:
+        rows += _rows_at(level, FACTORS[level], VARIANTS, FAMILIES, guesses)
+    return rows
+
+
+SPREAD = (0.92, 0.96, 1.0, 1.04, 1.08, 1.12)
+"""Factors of ``--spread``: six gmsh meshes of each variant a few per cent apart in size
+around a level (dofs about -15 % to +20 %), each with the universal meshes at its dofs."""
+
+
+def spread(level: int) -> list[dict]:
+    """How much the errors move between nearby meshes of each family: the ``graded`` and
+    ``tutorial`` gmsh meshes at :data:`SPREAD` times the level's factor, and the demo's
+    field and the adaptive loop at the graded meshes' dofs (a single comparison at one
+    size cannot tell a systematic difference from the sign changes of the lift)."""
+    _adaptive_past(1.3e4 * (FACTORS[0] / (SPREAD[0] * FACTORS[level])) ** 2)
+    rows = []
+    guesses = {family: 1.0 for family in FAMILIES}
+    for f in SPREAD:
+        factor = f * FACTORS[level]
+        rows += _rows_at(level, factor, ("graded",), ("universal", "adaptive"), guesses)
+        rows += _rows_at(level, factor, ("tutorial",), (), guesses)
+    return rows
+
+
+def spread_summary(rows: list[dict]) -> str:
+    """Per mesh family: the median and range of |relative error| of c_D and c_L, and in how
+    many of the sizes the family's c_L error is below the graded gmsh mesh's."""
+    graded = [r for r in rows if r["mesh"] == "gmsh" and r["variant"] == "graded"]
+    lines = [
+        "| meshes | dofs | median |err c_D| | range | median |err c_L| | range "
+        "| c_L below graded gmsh |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, pick in (
+        ("gmsh graded", lambda r: r["mesh"] == "gmsh" and r["variant"] == "graded"),
+        ("gmsh tutorial", lambda r: r["mesh"] == "gmsh" and r["variant"] == "tutorial"),
+        ("universal (field)", lambda r: r["mesh"] == "universal"),
+        ("universal (adaptive)", lambda r: r["mesh"] == "adaptive"),
+    ):
+        mine = [r for r in rows if pick(r)]
+        d = np.abs([r["err_c_D"] for r in mine])
+        c = np.abs([r["err_c_L"] for r in mine])
+        wins = (
+            ""
+            if name.startswith("gmsh")
+            else str(
+                sum(
+                    abs(r["err_c_L"]) < abs(g["err_c_L"])
+                    for r in mine
+                    for g in graded
+                    if g["factor"] == r["factor"]
+                )
+            )
+            + f" of {len(mine)}"
+        )
+        n = [r["n_dofs"] for r in mine]
+        lines.append(
+            f"| {name} | {min(n)}-{max(n)} | {np.median(d):.1e} | {d.min():.1e}-{d.max():.1e} "
+            f"| {np.median(c):.1e} | {c.min():.1e}-{c.max():.1e} | {wins} |"
+        )
+    return "\n".join(lines)
 
 
 COLUMNS = (
@@ -380,7 +450,26 @@ def main() -> None:
     p.add_argument("--levels", type=int, nargs="+", default=list(range(len(FACTORS))))
     p.add_argument("--quick", action="store_true", help="level 0 only")
     p.add_argument("--out", type=Path, default=Path("out/dfg_vs_gmsh.json"))
+    p.add_argument(
+        "--spread",
+        type=int,
+        default=None,
+        metavar="LEVEL",
+        help="the errors' spread over six nearby sizes around LEVEL (SPREAD) instead",
+    )
     args = p.parse_args()
+    if args.spread is not None:
+        t0 = time.perf_counter()
+        rows = spread(args.spread)
+        if comm.rank == 0:
+            print(
+                f"\nspread around level {args.spread} (factors {SPREAD} x {FACTORS[args.spread]}):"
+            )
+            print(spread_summary(rows))
+            print(f"total {time.perf_counter() - t0:.0f} s, load average {os.getloadavg()[0]:.2f}")
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+            args.out.write_text(json.dumps({"spread": SPREAD, "rows": rows}, indent=2) + "\n")
+        return
     levels = [0] if args.quick else args.levels
     if comm.rank == 0:
         print(

@@ -44,3 +44,31 @@ def test_dfg_vs_gmsh_quick(tmp_path):
     # the side-by-side table: one line per gmsh mesh
     table = [line for line in out.splitlines() if line.startswith("| 0 |")]
     assert len(table) == len(variants), out
+
+
+@pytest.mark.skipif(importlib.util.find_spec("gmsh") is None, reason="gmsh not installed")
+def test_spread_summary_counts_against_the_graded_mesh_of_the_same_size():
+    """``--spread``'s table: medians and ranges of |errors| per family, and the sizes at
+    which a universal family's c_L error is below the graded gmsh mesh's of that size."""
+    import sys
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    import dfg_vs_gmsh
+
+    def row(mesh, variant, factor, c_d, c_l, dofs=1000):
+        return {"mesh": mesh, "variant": variant, "factor": factor, "n_dofs": dofs,
+                "err_c_D": c_d, "err_c_L": c_l}  # fmt: skip
+
+    rows = [
+        row("gmsh", "graded", 0.2, 1e-6, -4e-5),
+        row("gmsh", "graded", 0.3, 2e-6, 1e-5),
+        row("gmsh", "tutorial", 0.2, 5e-6, 3e-4),
+        row("universal", "graded", 0.2, -3e-6, 3e-5),  # below 4e-5: a win
+        row("universal", "graded", 0.3, 1e-6, -2e-5),  # above 1e-5: not
+        row("adaptive", "graded", 0.2, 1e-7, 1e-4),
+        row("adaptive", "graded", 0.3, 2e-7, 5e-6),
+    ]
+    table = dfg_vs_gmsh.spread_summary(rows).splitlines()
+    assert table[2].startswith("| gmsh graded | 1000-1000 | 1.5e-06 | 1.0e-06-2.0e-06 | 2.5e-05")
+    assert table[4].endswith("| 1 of 2 |") and table[5].endswith("| 1 of 2 |")
+    assert "| 2.5e-05 | 2.0e-05-3.0e-05 |" in table[4]
