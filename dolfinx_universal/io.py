@@ -177,6 +177,21 @@ def write_mesh(
     comm.barrier()
 
 
+def _facet_tags_of(
+    msh: dmesh.Mesh, rows: npt.NDArray[np.int64], values: np.ndarray, dtype: npt.DTypeLike
+) -> dmesh.MeshTags:
+    """Facet tags of ``msh``, values of type ``dtype``, from facets given on any ranks as
+    rows of facet-closure nodes (input indices of ``msh``) with ``values`` (int32, int64,
+    float32 or float64: the types DOLFINx carries), sent to the ranks that hold them by
+    :func:`dolfinx.io.distribute_entity_data` (owned and ghost facets; collective)."""
+    tdim = msh.topology.dim
+    entities, carried = distribute_entity_data(msh, tdim - 1, rows, values)
+    msh.topology.create_connectivity(tdim - 1, tdim)
+    return dmesh.meshtags_from_entities(
+        msh, tdim - 1, graph.adjacencylist(entities), np.asarray(carried).astype(dtype)
+    )
+
+
 def _closure_rows(msh: dmesh.Mesh, vertex_nodes: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
     """Facets given by the global input indices of their ``tdim`` vertex nodes (any order),
     as the rows of facet-closure nodes that :func:`dolfinx.io.distribute_entity_data` takes:
@@ -240,12 +255,7 @@ def _tags_from_file(raw: dmesh.Mesh, msh: dmesh.Mesh, sidecar: Path) -> dmesh.Me
     nodes = dmesh.entities_to_geometry(raw, 0, verts.ravel()).reshape(-1)
     glob = imap.local_to_global(nodes.astype(np.int32)).reshape(-1, tdim).astype(np.int64)
     # Global node numbers of `raw` (input indices of `msh`) -> facets of `msh`.
-    entities, values = distribute_entity_data(msh, tdim - 1, _closure_rows(msh, glob), values)
-    msh.topology.create_entities(tdim - 1)
-    msh.topology.create_connectivity(tdim - 1, tdim)
-    return dmesh.meshtags_from_entities(
-        msh, tdim - 1, graph.adjacencylist(entities), np.asarray(values).astype(dtype)
-    )
+    return _facet_tags_of(msh, _closure_rows(msh, glob), values, dtype)
 
 
 def read_mesh(
@@ -397,13 +407,7 @@ def redistribute(
     nodes = mesh.geometry.dofmaps[0][cell_of[:, None], closure[local]]
     imap = mesh.geometry.index_map()
     glob = imap.local_to_global(nodes.ravel().astype(np.int32)).reshape(nodes.shape)
-    entities, tag_values = distribute_entity_data(
-        new, tdim - 1, glob.astype(np.int64), values.astype(np.int32)
-    )
-    new.topology.create_connectivity(tdim - 1, tdim)
-    tags = dmesh.meshtags_from_entities(
-        new, tdim - 1, graph.adjacencylist(entities), tag_values.astype(np.int32, copy=False)
-    )
+    tags = _facet_tags_of(new, glob.astype(np.int64), values.astype(np.int32), np.int32)
     tags.name = facet_tags.name
     return new, tags
 
