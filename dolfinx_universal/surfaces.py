@@ -54,6 +54,14 @@ __all__ = ["Ellipsoid", "ImplicitSurface", "Sphere", "Surface", "Torus"]
 ArrayFn = Callable[[Float], Float]
 
 _GOLDEN = np.pi * (3.0 - np.sqrt(5.0))
+_NEWTON_MU = 1e-3
+"""Smallest eigenvalue of the reduced Hessian ``Q`` of :class:`ImplicitSurface`'s closest-point
+search at which its Newton step is trusted without the distance test (``Q = I`` on a plane;
+it is singular only where the point is a centre of curvature of Gamma)."""
+_NEWTON_REACH = 1e-4
+"""Longest such step, in grid cells of the seeds: far inside the region where Newton's method
+converges (a fraction of the radius of curvature), far above the steps that the distance
+test cannot resolve."""
 """Golden angle (radians) of the Fibonacci lattices."""
 
 
@@ -594,6 +602,8 @@ class ImplicitSurface(Surface):
     of negative curvature, away from maxima and saddles), limited to one cell; the new point
     is moved back onto Gamma along the gradient line (Newton's method bracketed by a sign
     change of ``phi``, with bisection), and a step that increases the distance is halved.
+    Near the end, small Newton steps where ``Q`` is positive definite are taken without the
+    distance test (which rounding blinds there), so the points are stationary to rounding.
     The nearest converged result wins (converged: a step below ``1e-12 diag(bbox)`` where
     ``Q`` is positive semi-definite); it is checked to be on Gamma
     (``|phi| / |grad phi| <= 1e-12 diag(bbox)``) with ``x - y`` parallel to ``grad phi``.
@@ -835,12 +845,21 @@ class ImplicitSurface(Surface):
             # torus: a circle of closest points; the centre of a sphere) Q is singular
             # along the ties and Newton's step there is rounding over 1e-8, which would
             # drift along them for ever; stopping keeps the start's own tie (deterministic).
-            beta[(np.hypot(b[:, 0], b[:, 1]) <= tol) & ~neg] = 0.0
+            # Where Q is well away from singular, the step to the stationary point is taken
+            # even then: it moves the point by rounding and makes it stationary to rounding.
+            stationary = (np.hypot(b[:, 0], b[:, 1]) <= tol) & ~neg
+            beta[stationary & (mu[:, 0] < _NEWTON_MU)] = 0.0
             nb = np.hypot(beta[:, 0], beta[:, 1])
             with np.errstate(divide="ignore", invalid="ignore"):
                 beta *= np.minimum(1.0, delta / nb)[:, None]
             step = np.einsum("ka,kai->ki", beta, T)
             size = _normd(step)
+            # Small Newton steps where Q is positive definite are taken without the distance
+            # test: their decrease of the distance, O(size^2 / distance), falls below the
+            # rounding of the distance from size ~ 1e-8 sqrt(distance) on, where that test
+            # stalled the search (leaving closest points off by up to 1e-9 along Gamma,
+            # different for inputs an ulp apart); Newton's method converges there.
+            newton = (mu[:, 0] >= _NEWTON_MU) & (size <= _NEWTON_REACH * delta)
             fac = np.ones(len(act))
             pend = np.arange(len(act))
             ynew = ya.copy()
@@ -850,7 +869,7 @@ class ImplicitSurface(Surface):
                 yt, okt = self._to_surface(ya[pend] + fac[pend, None] * step[pend])
                 dt = _normd(yt - xa[pend])
                 small = fac[pend] * size[pend] <= tol
-                good = okt & ((dt <= dist[act[pend]] * (1 + 8 * _EPS)) | small)
+                good = okt & ((dt <= dist[act[pend]] * (1 + 8 * _EPS)) | small | newton[pend])
                 ynew[pend[good]] = yt[good]
                 dist[act[pend[good]]] = dt[good]
                 pend = pend[~good]
