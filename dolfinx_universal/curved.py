@@ -9,6 +9,7 @@ from __future__ import annotations
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import lru_cache
 
 from mpi4py import MPI
 
@@ -323,6 +324,13 @@ def jacobian_ratio(
     return jacobian_bounds(nodes, degree, threshold=threshold)[0]
 
 
+@lru_cache(maxsize=16)
+def _coordinate_element(cell_type: dmesh.CellType, degree: int) -> fem.CoordinateElement:
+    """DOLFINx's GLL-warped Lagrange coordinate element, built once per cell type and degree
+    (the build costs about as much as the curved map of 1e4 triangles)."""
+    return fem.coordinate_element(cell_type, degree, basix.LagrangeVariant.gll_warped)
+
+
 @dataclass
 class CurvedMesh:
     """A degree-k conforming mesh on the topology of a straight conforming mesh."""
@@ -383,7 +391,7 @@ def curved_mesh(
     degree = check_degree(degree, tdim)
     kernels = cell_kernels(tdim)
     kind = "G" if map in ("I", "G") else "G~"
-    ce = fem.coordinate_element(kernels.cell_type, degree, basix.LagrangeVariant.gll_warped)
+    ce = _coordinate_element(kernels.cell_type, degree)
     # The interpolated geometry is the affine image of every cell: only the curved cells
     # change (affine on their straight entities, so shared nodes agree).
     msh = fem.interpolate_geometry(cm.mesh, ce)
