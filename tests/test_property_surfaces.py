@@ -366,3 +366,31 @@ def test_fuzz_benchmark_3d(tmp_path, options, mesher):
     for rec in summary["records"]:  # (ok: every check passed, the gap within MOVING_ATOL)
         assert rec["outcome"] == "ok" and rec["min_sampled_jacobian_ratio"] > 0.0
         assert ("max_gap_to_fresh" in rec) == ("--moving" in options)
+
+
+@pytest.mark.skip_in_parallel
+def test_fuzz_benchmark_against_serial(tmp_path):
+    """``fuzz_domains.py --against-serial`` on 2 ranks: each mesh also made on one rank, its
+    nodes within ``SERIAL_ATOL`` (relative to the extent) of the parallel mesh's; and the
+    measure it uses tells a node moved by 1e-9 from the same mesh."""
+    import importlib.util
+    import json
+
+    out = tmp_path / "fuzz"
+    cmd = ["--dim", "3", "--n", "2", "--mild", "--degrees", "2", "--against-serial"]
+    r = run_mpi(2, [str(ROOT / "benchmarks" / "fuzz_domains.py"), *cmd, "--out", str(out)])
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["counts"]["ok"] == 2, r.stdout
+    spec = importlib.util.spec_from_file_location(
+        "fuzz_domains", ROOT / "benchmarks" / "fuzz_domains.py"
+    )
+    fuzz = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(fuzz)
+    for rec in summary["records"]:
+        assert 0.0 <= rec["serial_gap"] <= fuzz.SERIAL_ATOL, rec
+    d = case_surface(0)
+    msh = du.mesh_domain(MPI.COMM_SELF, d.boundary, d.h).mesh
+    assert fuzz.serial_gap(MPI.COMM_SELF, msh, lambda: msh) == 0.0
+    moved = du.mesh_domain(MPI.COMM_SELF, d.boundary, d.h).mesh
+    moved.geometry.x[7] += 1e-9 * d.extent
+    assert fuzz.serial_gap(MPI.COMM_SELF, msh, lambda: moved) > fuzz.SERIAL_ATOL
