@@ -54,6 +54,7 @@ __all__ = ["Ellipsoid", "ImplicitSurface", "Sphere", "Surface", "Torus"]
 ArrayFn = Callable[[Float], Float]
 
 _GOLDEN = np.pi * (3.0 - np.sqrt(5.0))
+"""Golden angle (radians) of the Fibonacci lattices."""
 _NEWTON_MU = 1e-3
 """Smallest eigenvalue of the reduced Hessian ``Q`` of :class:`ImplicitSurface`'s closest-point
 search at which its Newton step is trusted without the distance test (``Q = I`` on a plane;
@@ -62,7 +63,6 @@ _NEWTON_REACH = 1e-4
 """Longest such step, in grid cells of the seeds: far inside the region where Newton's method
 converges (a fraction of the radius of curvature), far above the steps that the distance
 test cannot resolve."""
-"""Golden angle (radians) of the Fibonacci lattices."""
 
 
 # ----------------------------------------------------------------------------- helpers
