@@ -143,6 +143,16 @@ def serial_gap(comm: MPI.Comm, msh: Any, serial: Callable[[], Any]) -> float:
     return float(comm.bcast(gap, root=0))
 
 
+def _against_serial(
+    comm: MPI.Comm, rec: dict, msh: Any, serial: Callable[[], Any], label: str
+) -> list[str]:
+    """:func:`serial_gap` recorded in ``rec``; the failure it makes, if any (collective)."""
+    gap = rec["serial_gap"] = serial_gap(comm, msh, serial)
+    return (
+        [f"{label}: the mesh differs from the serial one by {gap:.3g}"] if gap > SERIAL_ATOL else []
+    )
+
+
 def run_one(
     comm: MPI.Comm,
     seed: int,
@@ -199,14 +209,13 @@ def run_one(
     rec["check_time"] = time.perf_counter() - t1
     failures = list(r["failures"])
     if against_serial and have and comm.size > 1:
-        gap = serial_gap(
+        failures += _against_serial(
             comm,
+            rec,
             result.mesh,
             lambda: du.mesh_domain(MPI.COMM_SELF, d.boundary, d.h, degree=degree).mesh,
+            label,
         )
-        rec["serial_gap"] = gap
-        if gap > SERIAL_ATOL:
-            failures.append(f"{label}: the mesh differs from the serial one by {gap:.3g}")
     rec["outcome"] = "wrong_mesh" if failures else "ok"
     if failures:
         rec["message"] = " | ".join(failures)[:600]
@@ -419,18 +428,13 @@ def run_one_3d(
     rec["check_time"] = time.perf_counter() - t1
     failures = r["failures"] + (rc["failures"] if rc is not None else [])
     if against_serial and comm.size > 1:
-        gap = serial_gap(
-            comm,
-            result.mesh,
-            lambda: (
-                du.mesh_domain(
-                    MPI.COMM_SELF, d.boundary, d.h, degree=degree, max_cells=max_cells
-                ).mesh
-            ),
-        )
-        rec["serial_gap"] = gap
-        if gap > SERIAL_ATOL:
-            failures.append(f"{d.label}: the mesh differs from the serial one by {gap:.3g}")
+
+        def serial() -> Any:
+            return du.mesh_domain(
+                MPI.COMM_SELF, d.boundary, d.h, degree=degree, max_cells=max_cells
+            ).mesh
+
+        failures += _against_serial(comm, rec, result.mesh, serial, d.label)
     rec["outcome"] = "wrong_mesh" if failures else "ok"
     if failures:
         rec["message"] = " | ".join(failures)[:800]
