@@ -857,7 +857,7 @@ class ImplicitSurface(Surface):
             # Small Newton steps where Q is positive definite are taken without the distance
             # test: their decrease of the distance, O(size^2 / distance), falls below the
             # rounding of the distance from size ~ 1e-8 sqrt(distance) on, where that test
-            # stalled the search (leaving closest points off by up to 1e-9 along Gamma,
+            # stalled the search (leaving closest points off by up to 2e-9 along Gamma,
             # different for inputs an ulp apart); Newton's method converges there.
             newton = (mu[:, 0] >= _NEWTON_MU) & (size <= _NEWTON_REACH * delta)
             fac = np.ones(len(act))
