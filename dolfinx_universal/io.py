@@ -219,14 +219,24 @@ def _tags_from_file(raw: dmesh.Mesh, msh: dmesh.Mesh, sidecar: Path) -> dmesh.Me
     """
     comm = msh.comm
     tdim = msh.topology.dim
+    table: list[np.ndarray] = []  # rank 0: the rows and values, read with the header
 
     def load() -> tuple[int, int] | None:
         if not sidecar.exists():
             return None
         with np.load(sidecar) as d:
-            return int(d["num_nodes"]), int(d["dim"])
+            header = int(d["num_nodes"]), int(d["dim"])
+            rows = np.asarray(d["vertices"], dtype=np.int64)
+            values = np.asarray(d["values"])
+        if rows.ndim != 2 or rows.shape[1] != header[1] + 1 or len(values) != len(rows):
+            raise ValueError(
+                f"{sidecar} is malformed: vertices of shape {rows.shape} for facets of "
+                f"dimension {header[1]} (expected ({len(values)}, {header[1] + 1}))"
+            )
+        table[:] = [rows, values]
+        return header
 
-    header = _on_root(comm, load)
+    header = _on_root(comm, load)  # a sidecar that cannot be read fails on every rank
     if header is None:
         return None
     imap = raw.geometry.index_map()
@@ -238,9 +248,7 @@ def _tags_from_file(raw: dmesh.Mesh, msh: dmesh.Mesh, sidecar: Path) -> dmesh.Me
         )
     parts = None
     if comm.rank == 0:
-        with np.load(sidecar) as d:
-            rows = np.asarray(d["vertices"], dtype=np.int64).reshape(-1, tdim)
-            values = np.asarray(d["values"])
+        rows, values = table
         cuts = np.linspace(0, len(rows), comm.size + 1).astype(np.int64)
         parts = [(rows[a:b], values[a:b]) for a, b in zip(cuts[:-1], cuts[1:])]
     rows, values = comm.scatter(parts, root=0)

@@ -129,6 +129,23 @@ def test_sidecar_of_another_mesh(meshes, mpi_tmp_path):
         duio.read_mesh(comm, mpi_tmp_path / "b.vtkhdf")
 
 
+@pytest.mark.mpi
+def test_malformed_sidecar_fails_on_every_rank(meshes, mpi_tmp_path):
+    """A sidecar whose header fits but whose rows do not: an error on every rank (rank 0
+    alone read the rows, after the header, so the others waited in the scatter)."""
+    f = mpi_tmp_path / "m.vtkhdf"
+    duio.write_mesh(f, meshes["disc2"].mesh, meshes["disc2"].facet_tags)
+    if comm.rank == 0:
+        with np.load(duio.tags_path(f)) as d:
+            data = dict(d)
+        data["vertices"] = data["vertices"][:, :1]
+        with open(duio.tags_path(f), "wb") as out:
+            np.savez(out, **data)
+    comm.barrier()
+    with pytest.raises(OSError, match="is malformed"):
+        duio.read_mesh(comm, f)
+
+
 def test_write_fields(meshes, mpi_tmp_path):
     from dolfinx import fem
 
