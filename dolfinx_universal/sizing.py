@@ -870,6 +870,7 @@ def refine_size(
     size_field: SizeFunction | None = None,
     factor: float = 0.6,
     gradation: float = 0.2,
+    mirror: tuple[npt.ArrayLike, npt.ArrayLike] | None = None,
 ) -> SizeFunction:
     """The size field of the next mesh of an adaptive loop: finer at the marked cells.
 
@@ -903,6 +904,14 @@ def refine_size(
         factor of exactly 0.5 can split twice), one in ``(0.25, 0.5)`` twice.
     gradation
         Growth of the size away from the marked cells (per unit length).
+    mirror
+        A plane ``(point, normal)`` (a line in 2D): each source is also placed at its
+        mirror image, with the same size, so that the new sources are symmetric under the
+        reflection. For a domain (nearly) symmetric under it whose quantity of interest is
+        a difference of the two halves' contributions, such as the lift on a body in a
+        symmetric flow: marking by an error indicator breaks the symmetry (rounding, the
+        background's cells), and the two halves' discretisation errors, which cancel in the
+        difference on a symmetric refinement, then add up instead.
 
     Returns
     -------
@@ -943,6 +952,8 @@ def refine_size(
     comm = mesh.comm
     points = np.concatenate(comm.allgather(centres)).reshape(-1, gdim)
     sizes = np.concatenate(comm.allgather(factor * local_size))
+    if mirror is not None:
+        points, sizes = _mirrored(points, sizes, mirror, gdim)
     h_max = comm.allreduce(float(diam[: cmap.size_local].max(initial=0.0)), op=MPI.MAX)
     if len(points) == 0:  # nothing marked: the previous field
         if size_field is None:
@@ -961,6 +972,26 @@ def refine_size(
             gradation,
         )
     return _Refined(size_field, points, sizes, h_max, gradation)
+
+
+def _mirrored(
+    points: Float, sizes: Float, mirror: tuple[npt.ArrayLike, npt.ArrayLike], gdim: int
+) -> tuple[Float, Float]:
+    """The sources ``points`` with their sizes and their mirror images in the plane
+    ``mirror = (point, normal)`` with the same sizes."""
+    try:
+        origin, normal = (np.asarray(v, dtype=np.float64).reshape(-1) for v in mirror)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"mirror must be (point, normal), got {mirror!r}") from e
+    length = float(np.linalg.norm(normal)) if normal.shape == (gdim,) else 0.0
+    if origin.shape != (gdim,) or not np.all(np.isfinite(origin)) or not length > 0:
+        raise ValueError(
+            f"mirror must be (point, normal) with {gdim} finite coordinates each and a "
+            f"nonzero normal, got {mirror!r}"
+        )
+    n = normal / length
+    images = points - 2.0 * ((points - origin) @ n)[:, None] * n
+    return np.concatenate([points, images]), np.concatenate([sizes, sizes])
 
 
 class _Refined:

@@ -194,6 +194,33 @@ def test_refine_size_halves_the_marked_cells():
         du.refine_size(md.mesh, [10**9])
 
 
+def test_refine_size_mirror_refines_both_halves_alike():
+    """``mirror``: the sources of the marked cells above the line y = 0.2 and their images
+    below it, with the same sizes; the new background is finer at the images as at the
+    marked cells (without ``mirror``: only there); a bad plane is refused."""
+    h = 0.04
+    md = du.mesh_domain(comm, CHANNEL, h, box=BOX, size_factor=2)
+    mid, _ = cell_data(md.mesh)
+    marked = np.flatnonzero((np.abs(mid[:, 0] - 1.5) < 0.1) & (mid[:, 1] > 0.25))
+    line = ([0.0, 0.2], [0.0, 3.0])  # any length of normal
+    field = du.refine_size(md.mesh, marked, mirror=line)
+    plain = du.refine_size(md.mesh, marked)
+    n = len(plain.points)
+    assert n > 0 and len(field.points) == 2 * n
+    np.testing.assert_array_equal(field.points[:n], plain.points)
+    np.testing.assert_allclose(field.points[n:, 0], plain.points[:, 0], rtol=0, atol=1e-15)
+    np.testing.assert_allclose(field.points[n:, 1], 0.4 - plain.points[:, 1], atol=1e-15)
+    np.testing.assert_array_equal(field.sizes, np.tile(plain.sizes, 2))
+    images = plain.points * [1.0, -1.0] + [0.0, 0.4]
+    # both within SizeField's factor 1.1 of the exact envelope, which is symmetric
+    np.testing.assert_allclose(field(images), field(plain.points), rtol=0.1)
+    # without mirror: no source there, the size grown by the gradation (at least 0.05 away)
+    assert (plain(images) > 1.5 * field(images)).all()
+    for bad in (([0.0, 0.2], [0.0, 0.0]), ([0.0], [0.0, 1.0]), ([np.nan, 0.2], [0.0, 1.0]), 3):
+        with pytest.raises(ValueError, match="mirror"):
+            du.refine_size(md.mesh, marked, mirror=bad)
+
+
 def test_refine_size_below_the_field_it_refines():
     """Where the mesh is coarser than the previous field asks (here a field finer than the
     cells everywhere, as near a curved boundary, where the longest edge around a cell can
