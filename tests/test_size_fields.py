@@ -250,6 +250,10 @@ def test_refine_size_on_tetrahedra():
     values = field(x)
     local = comm.allreduce(float(diam.max(initial=0.0)), op=MPI.MAX)
     assert values[0] <= 0.7 * local and values[1] > values[0]  # 0.6 L + 0.2 |x - p|
+    # mirrored in the plane z = 0: as fine at (0, 0, -0.3) as at (0, 0, 0.3)
+    both = du.refine_size(md.mesh, marked, mirror=([0.0, 0.0, 0.0], [0.0, 0.0, 1.0]))
+    image = both(np.array([[0.0, 0.0, 0.3], [0.0, 0.0, -0.3]]))
+    assert image[1] == pytest.approx(image[0], rel=0.1) and field(-x[:1])[0] > 1.4 * image[1]
 
 
 @pytest.mark.mpi
