@@ -396,6 +396,107 @@ def spread_summary(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+ON_CYLINDER = 1e-9
+"""A vertex lies on the cylinder if its distance to the centre is ``R`` within this fraction
+of ``R``: both kinds of mesh put their boundary vertices on the circle to rounding (1e-16),
+and any other vertex is a fraction of a cell (more than 1e-3 R) away from it."""
+
+
+def wall_layer(msh, outer, cylinder, w, q: dict) -> dict:
+    """Where the forces' errors sit on one mesh (collective).
+
+    The demo's dual-weighted residual indicators (``force_indicators``, whose sums estimate
+    the errors of c_D and c_L) split into the first layer (the cells with a vertex on the
+    cylinder) and the rest; the first layer's cell diameters (straight, in units of R) and
+    the exponent ``a`` of ``|eta_L| ~ diam^a`` over it (least squares of the logarithms); the
+    lift's indicators summed separately over the upper and the lower half (cells above and
+    below the centre), over the whole mesh and over the first layer: the lift is a
+    difference of the two halves' forces, and its error the small difference of the two
+    halves' errors."""
+    eta_d, eta_l = demo.force_indicators(msh, w, outer, cylinder)
+    owned = msh.topology.index_map(2).size_local
+    nodes = msh.geometry.dofmaps[0][:owned, :3]  # a triangle's vertices come first
+    x = msh.geometry.x[:, :2]
+    dist = np.hypot(x[:, 0] - demo.centre[0], x[:, 1] - demo.centre[1])
+    first = np.any(np.abs(dist[nodes] - R) <= ON_CYLINDER * R, axis=1)
+    p = x[nodes[first]]
+    diam = np.max(np.linalg.norm(p - np.roll(p, 1, axis=1), axis=2), axis=1) / R
+    upper = x[nodes, 1].mean(axis=1) > demo.centre[1]
+    top = upper[first]
+    lift = eta_l[first]
+    sums = comm.allreduce(
+        np.array([eta_d.sum(), eta_l.sum(), np.abs(eta_l).sum(), np.abs(lift).sum(),
+                  lift[top].sum(), lift[~top].sum(), np.abs(lift[top]).sum(),
+                  np.abs(lift[~top]).sum(), eta_l[upper].sum(), eta_l[~upper].sum()]),
+        op=MPI.SUM,
+    )  # fmt: skip
+    gathered = comm.gather((diam, np.abs(lift)), root=0)
+    fit = {}
+    if comm.rank == 0:
+        d = np.concatenate([g[0] for g in gathered])
+        e = np.concatenate([g[1] for g in gathered])
+        a = np.polyfit(np.log(d), np.log(np.maximum(e, 1e-300)), 1)[0] if len(d) > 1 else np.nan
+        fit = {"cells": len(d), "diam_min": d.min(), "diam_median": np.median(d),
+               "diam_max": d.max(), "exponent": a}  # fmt: skip
+    fit = comm.bcast(fit, root=0)
+    c_d, c_l = q["c_D"], q["c_L"]
+    return {
+        "first_layer_cells": int(fit["cells"]),
+        **{k: float(fit[k]) for k in ("diam_min", "diam_median", "diam_max", "exponent")},
+        "estimate_c_D": float(sums[0] / c_d),
+        "estimate_c_L": float(sums[1] / c_l),
+        "first_layer_share_L": float(sums[3] / sums[2]),
+        "first_top_L": float(sums[4] / c_l),
+        "first_bottom_L": float(sums[5] / c_l),
+        "first_abs_top_L": float(sums[6] / c_l),
+        "first_abs_bottom_L": float(sums[7] / c_l),
+        "top_L": float(sums[8] / c_l),
+        "bottom_L": float(sums[9] / c_l),
+    }
+
+
+def layers(level: int) -> list[dict]:
+    """The graded gmsh mesh at ``level``'s factor and the demo's field and adaptive loop at
+    its dofs, each with :func:`wall_layer`: what the lift's error is made of."""
+    msh, outer, cylinder, _ = gmsh_mesh("graded", FACTORS[level])
+    q, w = demo.solve(msh, outer, cylinder, f"gmsh_{level}_layers")
+    rows = [
+        {
+            "mesh": "gmsh graded",
+            **q,
+            **_relative_errors(q),
+            **wall_layer(msh, outer, cylinder, w, q),
+        }
+    ]
+    _adaptive_past(q["n_dofs"])
+    for family in ("universal", "adaptive"):
+        md = matched_mesh(family, q["n_dofs"], demo.level_scale(level))[0]
+        tags = md.facet_tags
+        outer, cylinder = tags.find(du.OUTER), tags.find(du.IMMERSED)
+        qu, wu = demo.solve(md.mesh, outer, cylinder, f"{family}_{level}_layers")
+        rows.append({"mesh": family, **qu, **_relative_errors(qu),
+                     **wall_layer(md.mesh, outer, cylinder, wu, qu)})  # fmt: skip
+    return rows
+
+
+def layers_table(rows: list[dict]) -> str:
+    """:func:`layers` as a markdown table (lift terms relative to c_L; the halves: the
+    lift's indicators summed over each, whose sum is the estimate)."""
+    lines = [
+        "| mesh | dofs | err c_L | est. | first layer: cells | diam/R min-median-max "
+        "| exponent | its share of sum abs eta_L | upper half | lower half |",
+        "|" + "---|" * 10,
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['mesh']} | {r['n_dofs']} | {r['err_c_L']:+.1e} | {r['estimate_c_L']:+.1e} "
+            f"| {r['first_layer_cells']} | {r['diam_min']:.3f}-{r['diam_median']:.3f}-"
+            f"{r['diam_max']:.3f} | {r['exponent']:.1f} | {r['first_layer_share_L']:.0%} "
+            f"| {r['top_L']:+.1e} | {r['bottom_L']:+.1e} |"
+        )
+    return "\n".join(lines)
+
+
 COLUMNS = (
     ("level", 5, "d"),
     ("variant", 8, "s"),
@@ -457,7 +558,22 @@ def main() -> None:
         metavar="LEVEL",
         help="the errors' spread over six nearby sizes around LEVEL (SPREAD) instead",
     )
+    p.add_argument(
+        "--layers",
+        type=int,
+        default=None,
+        metavar="LEVEL",
+        help="where the lift's error sits at LEVEL (wall_layer) instead",
+    )
     args = p.parse_args()
+    if args.layers is not None:
+        rows = layers(args.layers)
+        if comm.rank == 0:
+            print(f"\nthe cylinder's first layer of cells at level {args.layers}:")
+            print(layers_table(rows))
+            args.out.parent.mkdir(parents=True, exist_ok=True)
+            args.out.write_text(json.dumps({"layers": args.layers, "rows": rows}, indent=2) + "\n")
+        return
     if args.spread is not None:
         t0 = time.perf_counter()
         rows = spread(args.spread)

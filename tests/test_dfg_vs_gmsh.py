@@ -72,3 +72,27 @@ def test_spread_summary_counts_against_the_graded_mesh_of_the_same_size():
     assert table[2].startswith("| gmsh graded | 1000-1000 | 1.5e-06 | 1.0e-06-2.0e-06 | 2.5e-05")
     assert table[4].endswith("| 1 of 2 |") and table[5].endswith("| 1 of 2 |")
     assert "| 2.5e-05 | 2.0e-05-3.0e-05 |" in table[4]
+
+
+@pytest.mark.skip_in_parallel
+@pytest.mark.skipif(importlib.util.find_spec("gmsh") is None, reason="gmsh not installed")
+def test_layers_split_the_lift_estimate(tmp_path):
+    """``--layers 0``: for the graded gmsh mesh and the demo's two universal meshes at its
+    dofs, the lift's dual-weighted estimate, split into the two halves (which sum to it), and
+    the first layer of cells at the cylinder (a vertex on it)."""
+    out_json = tmp_path / "layers.json"
+    script = str(ROOT / "benchmarks" / "dfg_vs_gmsh.py")
+    out = run_mpi(1, [script, "--layers", "0", "--out", str(out_json)], timeout=600).stdout
+    rows = json.loads(out_json.read_text())["rows"]
+    assert [r["mesh"] for r in rows] == ["gmsh graded", "universal", "adaptive"]
+    for r in rows:
+        # the halves partition the cells: their sums add up to the estimate (to rounding)
+        assert r["top_L"] + r["bottom_L"] == pytest.approx(r["estimate_c_L"], rel=1e-9, abs=1e-15)
+        # at ~1e4 dofs the estimate has the error's sign and size (demo: 7.8e-2 and 6.5e-2)
+        assert r["estimate_c_L"] * r["err_c_L"] > 0, r
+        assert 0.5 < r["estimate_c_L"] / r["err_c_L"] < 2, r
+        # a ring of cells around the circle of radius R, each a fraction of R across
+        assert r["first_layer_cells"] > 50, r
+        assert 0 < r["diam_min"] <= r["diam_median"] <= r["diam_max"] < 1, r
+        assert 0 < r["first_layer_share_L"] <= 1, r
+    assert sum(line.startswith("| ") for line in out.splitlines()) == 1 + len(rows), out
