@@ -75,7 +75,7 @@
 #
 # Run with `python demos/dfg_benchmark.py [--quick] [--out DIR]`, also under `mpirun`.
 # `--quick` runs the three coarsest levels of both degrees and the adaptive loop up to
-# their number of degrees of freedom (about 30 s; the full run about six minutes).
+# their number of degrees of freedom (about 30 s; the full run about three and a half minutes).
 # Written to `DIR` (default `out/dfg_benchmark`): `summary.json` (`{"rows": [...],
 # "adaptive": [...], "theta": ...}`, one row per level and geometry degree, one per
 # adaptive round), `fields.png` (velocity magnitude and pressure near the cylinder, on the
@@ -381,13 +381,26 @@ def solve_level(level: int, degree: int) -> tuple[dict, fem.Function]:
 # `mesh_domain` conforms the circle to the new quadtree: no remeshing, a fraction of a
 # second per round. The loop starts from level 0's field and stops past the finest
 # level's number of degrees of freedom.
+#
+# The refinement is kept symmetric about the horizontal line through the cylinder's centre
+# (`refine_size`'s `mirror`: every marked cell also refines at its mirror image). The lift
+# is the difference of the vertical forces on the upper and the lower half of the
+# cylinder, which nearly balance: on a mesh whose halves are refined alike, their
+# discretisation errors nearly cancel too. Marked one cell at a time, the two halves drift
+# apart (the indicators' rounding, the quadtree's pinwheel cells, which have no mirror
+# symmetry), and the halves' errors stop cancelling. `benchmarks/dfg_vs_gmsh.py --layers`
+# shows it: around $9 \cdot 10^4$ degrees of freedom the lift's indicators summed over
+# each half are seven to nine times its error on the graded gmsh mesh and on this demo's
+# field (numbers below).
 
 # +
 THETA = 0.3
 """Dörfler fraction of the adaptive loop (a small fraction: many small steps, each round
 refining where the indicator is largest)."""
-SHOWN_ROUND = 5
-"""The adaptive round drawn in ``adaptive_mesh.png`` (about 7e4 dofs: the cells show)."""
+MIRROR = (centre, (0.0, 1.0))
+"""The line of the loop's symmetric refinement: through the cylinder's centre, horizontal."""
+SHOWN_ROUND = 3
+"""The adaptive round drawn in ``adaptive_mesh.png`` (about 6e4 dofs: the cells show)."""
 
 
 def force_indicators(
@@ -533,7 +546,7 @@ def adaptive_study(
         )
         if row["n_dofs"] > max_dofs:
             break
-        field = du.refine_size(md.mesh, du.mark_cells(md.mesh, eta, THETA), field)
+        field = du.refine_size(md.mesh, du.mark_cells(md.mesh, eta, THETA), field, mirror=MIRROR)
     return rows, rounds, shown
 
 
@@ -660,21 +673,21 @@ def adaptive_table(rows: list[dict]) -> str:
 # ## What it gives
 #
 # The full run, as printed by `markdown_table` (relative errors against the reference
-# values; seconds of `mesh_domain` and of the solve, on a 2-core machine; 334 s in all,
+# values; seconds of `mesh_domain` and of the solve, on a 2-core machine; 201 s in all,
 # the adaptive loop included):
 #
 # | level | q | dofs | $c_D$ | $c_L$ | err $c_D$ | err $c_L$ | err $\Delta p$ | mesh s | solve s |
 # |---|---|---|---|---|---|---|---|---|---|
-# | 0 | 2 | 12983 | 5.5791455 | 0.01144663 | -7.0e-05 | +7.8e-02 | -9.7e-03 | 0.06 | 0.3 |
-# | 1 | 2 | 25548 | 5.5793268 | 0.01060313 | -3.7e-05 | -1.5e-03 | -5.3e-03 | 0.06 | 0.7 |
-# | 2 | 2 | 76234 | 5.5795151 | 0.01061860 | -3.6e-06 | -3.2e-05 | -1.2e-03 | 0.13 | 2.2 |
-# | 3 | 2 | 216706 | 5.5795335 | 0.01061875 | -3.2e-07 | -1.9e-05 | -4.7e-04 | 0.32 | 7.2 |
-# | 4 | 2 | 688364 | 5.5795351 | 0.01061894 | -2.7e-08 | -7.4e-07 | -1.5e-04 | 1.16 | 27.3 |
-# | 0 | 3 | 12983 | 5.5791819 | 0.01139278 | -6.3e-05 | +7.3e-02 | -9.7e-03 | 0.05 | 0.3 |
-# | 1 | 3 | 25548 | 5.5793329 | 0.01060398 | -3.6e-05 | -1.4e-03 | -5.3e-03 | 0.07 | 0.6 |
-# | 2 | 3 | 76234 | 5.5795152 | 0.01061881 | -3.6e-06 | -1.3e-05 | -1.2e-03 | 0.13 | 2.3 |
-# | 3 | 3 | 216706 | 5.5795335 | 0.01061875 | -3.1e-07 | -1.9e-05 | -4.7e-04 | 0.33 | 7.5 |
-# | 4 | 3 | 688364 | 5.5795351 | 0.01061894 | -2.7e-08 | -7.7e-07 | -1.5e-04 | 1.02 | 27.4 |
+# | 0 | 2 | 12983 | 5.5791455 | 0.01144663 | -7.0e-05 | +7.8e-02 | -9.7e-03 | 0.05 | 0.3 |
+# | 1 | 2 | 25548 | 5.5793268 | 0.01060313 | -3.7e-05 | -1.5e-03 | -5.3e-03 | 0.05 | 0.6 |
+# | 2 | 2 | 76234 | 5.5795151 | 0.01061860 | -3.6e-06 | -3.2e-05 | -1.2e-03 | 0.08 | 2.0 |
+# | 3 | 2 | 216706 | 5.5795335 | 0.01061875 | -3.2e-07 | -1.9e-05 | -4.7e-04 | 0.18 | 6.4 |
+# | 4 | 2 | 688364 | 5.5795351 | 0.01061894 | -2.7e-08 | -7.4e-07 | -1.5e-04 | 0.50 | 27.9 |
+# | 0 | 3 | 12983 | 5.5791819 | 0.01139278 | -6.3e-05 | +7.3e-02 | -9.7e-03 | 0.04 | 0.3 |
+# | 1 | 3 | 25548 | 5.5793329 | 0.01060398 | -3.6e-05 | -1.4e-03 | -5.3e-03 | 0.06 | 0.5 |
+# | 2 | 3 | 76234 | 5.5795152 | 0.01061881 | -3.6e-06 | -1.3e-05 | -1.2e-03 | 0.08 | 1.8 |
+# | 3 | 3 | 216706 | 5.5795335 | 0.01061875 | -3.1e-07 | -1.9e-05 | -4.7e-04 | 0.18 | 6.5 |
+# | 4 | 3 | 688364 | 5.5795351 | 0.01061894 | -2.7e-08 | -7.7e-07 | -1.5e-04 | 0.51 | 28.8 |
 #
 # The finest level matches the drag to $3 \cdot 10^{-8}$ and the lift to
 # $7 \cdot 10^{-7}$ relative (the check below asks for $10^{-4}$ and $10^{-2}$), with five
@@ -688,59 +701,66 @@ def adaptive_table(rows: list[dict]) -> str:
 # quadtree puts them along a boundary edge (gmsh's meshes have vertices there, the circle's
 # nodes starting at angle 0).
 #
-# The adaptive loop (`adaptive_table`; $\theta = 0.3$, from level 0's field), the
-# dual-weighted estimates of the errors beside the errors:
+# The adaptive loop (`adaptive_table`; $\theta = 0.3$, from level 0's field, mirrored
+# about the cylinder's axis), the dual-weighted estimates of the errors beside the errors:
 #
 # | round | dofs | err $c_D$ | est. | err $c_L$ | est. | err $\Delta p$ | mesh s | solve s | dual |
 # |---|---|---|---|---|---|---|---|---|---|
-# | 0 | 12983 | -7.0e-05 | -4.1e-05 | +7.8e-02 | +6.5e-02 | -9.7e-03 | 0.05 | 0.3 | 0.3 |
-# | 1 | 19286 | -6.8e-05 | -6.8e-05 | +2.6e-02 | +2.6e-02 | +3.9e-03 | 0.07 | 0.4 | 0.4 |
-# | 2 | 29949 | -1.9e-05 | -1.9e-05 | -7.6e-03 | -7.2e-03 | -1.3e-03 | 0.10 | 0.7 | 0.8 |
-# | 3 | 34495 | -7.0e-06 | -7.0e-06 | +4.6e-05 | +3.1e-05 | -1.3e-03 | 0.13 | 0.8 | 0.9 |
-# | 4 | 59036 | +1.2e-06 | +1.2e-06 | -2.1e-06 | +2.0e-05 | -6.1e-04 | 0.21 | 1.5 | 1.6 |
-# | 5 | 106226 | -2.2e-07 | -2.2e-07 | +1.3e-04 | +1.2e-04 | -2.9e-04 | 0.27 | 3.1 | 3.1 |
-# | 6 | 201196 | +7.2e-08 | +7.3e-08 | -3.8e-06 | -3.6e-06 | -3.4e-04 | 0.50 | 6.2 | 6.4 |
-# | 7 | 370097 | +6.7e-09 | +6.9e-09 | +6.4e-07 | +5.7e-07 | +1.1e-04 | 0.67 | 12.5 | 16.9 |
-# | 8 | 662251 | +4.5e-09 | +4.6e-09 | -4.1e-07 | -4.8e-07 | +6.0e-05 | 1.16 | 23.9 | 33.8 |
-# | 9 | 1196016 | -2.8e-10 | -2.3e-10 | +1.4e-08 | -6.3e-08 | -1.2e-05 | 2.19 | 61.1 | 71.1 |
+# | 0 | 12983 | -7.0e-05 | -4.1e-05 | +7.8e-02 | +6.5e-02 | -9.7e-03 | 0.04 | 0.3 | 0.3 |
+# | 1 | 20300 | -7.0e-05 | -7.0e-05 | +2.6e-02 | +2.6e-02 | +3.9e-03 | 0.05 | 0.4 | 0.4 |
+# | 2 | 33344 | -7.1e-06 | -7.0e-06 | -8.0e-04 | -8.1e-04 | -1.3e-03 | 0.09 | 0.7 | 0.8 |
+# | 3 | 63191 | -1.1e-06 | -1.1e-06 | -1.9e-05 | -8.7e-06 | -7.8e-04 | 0.15 | 1.6 | 1.6 |
+# | 4 | 113575 | +2.5e-07 | +2.5e-07 | +3.1e-05 | +3.1e-05 | -9.0e-04 | 0.20 | 2.9 | 3.1 |
+# | 5 | 222337 | +1.5e-08 | +1.5e-08 | +2.3e-06 | +2.3e-06 | +9.3e-05 | 0.33 | 6.6 | 7.5 |
+# | 6 | 386195 | +2.9e-08 | +2.9e-08 | -8.6e-07 | -9.3e-07 | +1.0e-04 | 0.51 | 12.6 | 18.3 |
+# | 7 | 702565 | +1.8e-09 | +1.8e-09 | +7.1e-08 | -7.0e-09 | +2.2e-05 | 0.82 | 25.9 | 35.9 |
 #
-# From round 1 on the estimate of the drag's error is within 4 % of the error (up to
-# $3 \cdot 10^{-10}$, where it is 18 % off); that of the lift is within
-# $2 \cdot 10^{-5}$ of its error (round 4, where the error passes through zero) and
-# within $2 \cdot 10^{-7}$ from round 6 on: the loop knows how accurate its forces are.
-# In the three finest rounds the lift's error and its estimate differ by the same
-# $7 \cdot 10^{-8}$ relative ($8 \cdot 10^{-10}$ absolute). The estimate leaves out the
-# error of the degree-2 boundary, but on the meshes of rounds 6 and 7 with degree-3 and
-# degree-4 geometry (the two agree to all digits) the difference is $8.3 \cdot 10^{-8}$
-# and $7.8 \cdot 10^{-8}$: it shrinks neither with the mesh nor with the geometry's
-# degree, which points to the last digits of the reference value (the corrected lift
-# $c_L(w_h) - \sum_K \eta^L_K$ is $0.0106189490$ there); for the drag the difference is
-# below $5 \cdot 10^{-11}$ on those meshes. At
-# $6.6 \cdot 10^5$ degrees of freedom the drag error is $4.5 \cdot 10^{-9}$ (the field's
-# level 4: $2.7 \cdot 10^{-8}$ at $6.9 \cdot 10^5$), the lift error $4.1 \cdot 10^{-7}$
-# ($7.4 \cdot 10^{-7}$) and that of $\Delta p$ $6.0 \cdot 10^{-5}$ ($1.5 \cdot 10^{-4}$).
-# The lift's error changes sign from round to round (a small difference of large forces),
-# so a single round can be luckier or unluckier than the trend: $1.3 \cdot 10^{-4}$ at
-# $1.1 \cdot 10^5$, then $3.8 \cdot 10^{-6}$ at $2.0 \cdot 10^5$. Where it refines is in
-# `adaptive_mesh.png` (round 5). Each round costs one `mesh_domain` (the background's
-# quadtree rebuilt from the new field and the circle conformed to it: 0.05 s to 2.2 s),
-# the solve and the dual solve ($P_3/P_2$, one factorisation for both forces: about as
-# long as Newton's five steps, 71 s against 61 s at $1.2 \cdot 10^6$ degrees of freedom).
+# From round 1 on the estimate of the drag's error is within 4 % of the error; that of
+# the lift is within $10^{-5}$ of its error (round 3, where the error is small) and within
+# $1.1 \cdot 10^{-7}$ from round 4 on: the loop knows how accurate its forces are. In the two finest
+# rounds the lift's error and its estimate differ by the same $7 \cdot 10^{-8}$ relative
+# ($8 \cdot 10^{-10}$ absolute). The estimate leaves out the error of the degree-2
+# boundary, but an earlier run of this loop gave the same difference with degree-3 and
+# degree-4 geometry on its meshes of $3.7 \cdot 10^5$ and $6.6 \cdot 10^5$ degrees of
+# freedom ($8.3 \cdot 10^{-8}$ and $7.8 \cdot 10^{-8}$; the two degrees agreed to all
+# digits): the difference shrinks neither with the mesh nor with the geometry's degree,
+# which points to the last digits of the reference value (the corrected lift
+# $c_L(w_h) - \sum_K \eta^L_K$ is $0.0106189490$ in round 7). At $7.0 \cdot 10^5$
+# degrees of freedom the drag error is $1.8 \cdot 10^{-9}$ (the field's level 4:
+# $2.7 \cdot 10^{-8}$ at $6.9 \cdot 10^5$), the lift error $7.1 \cdot 10^{-8}$
+# ($7.4 \cdot 10^{-7}$) and that of $\Delta p$ $2.2 \cdot 10^{-5}$ ($1.5 \cdot 10^{-4}$).
+#
+# The mirror matters for the lift. Without it (this loop before) the
+# rounds went through $1.06 \cdot 10^5$ degrees of freedom with a lift error of
+# $1.3 \cdot 10^{-4}$, four times the $3.1 \cdot 10^{-5}$ of round 4 here at
+# $1.14 \cdot 10^5$. `benchmarks/dfg_vs_gmsh.py --layers 2` splits the lift's estimate
+# over the two halves at $8.8 \cdot 10^4$ degrees of freedom: on the gmsh mesh graded like
+# this demo's field they are $+4.8 \cdot 10^{-4}$ and $-4.3 \cdot 10^{-4}$ (error
+# $5.5 \cdot 10^{-5}$); on the adaptive mesh without the mirror $+1.0 \cdot 10^{-4}$ and
+# $+6.0 \cdot 10^{-5}$, smaller, but of one sign, so they add up to $1.6 \cdot 10^{-4}$;
+# with it $+1.8 \cdot 10^{-4}$ and $-1.2 \cdot 10^{-4}$ ($6.2 \cdot 10^{-5}$). Where the
+# loop refines is in `adaptive_mesh.png` (round 3). Each round costs one `mesh_domain`
+# (the background's quadtree rebuilt from the new field and the circle conformed to it:
+# 0.04 s to 0.8 s), the solve and the dual solve ($P_3/P_2$, one factorisation for both
+# forces: about as long as Newton's five steps, 36 s against 26 s at $7 \cdot 10^5$
+# degrees of freedom).
 #
 # `benchmarks/dfg_vs_gmsh.py` runs `solve` on body-fitted gmsh meshes (the FEniCSx
 # tutorial's Threshold field and two finer at the cylinder, `setOrder(2)`) and on this
 # demo's meshes at equal numbers of degrees of freedom: the field's levels and the
 # adaptive loop (its last step's Dörfler fraction chosen to give the same number).
 # From $6 \cdot 10^4$ degrees of freedom on, the adaptive meshes' drag error is below that
-# of every gmsh mesh (at $7 \cdot 10^5$: $5 \cdot 10^{-10}$ to $6 \cdot 10^{-9}$ against
-# $2 \cdot 10^{-8}$ to $2 \cdot 10^{-7}$), and so is their lift error in eight of the nine
-# comparisons (at $7 \cdot 10^5$: $2.4 \cdot 10^{-7}$ to $8.7 \cdot 10^{-7}$ against
+# of every gmsh mesh (at $7 \cdot 10^5$: $1.1 \cdot 10^{-9}$ to $3.1 \cdot 10^{-9}$ against
+# $2.0 \cdot 10^{-8}$ to $2.1 \cdot 10^{-7}$), and so is their lift error in eight of the
+# nine comparisons (at $7 \cdot 10^5$: $6.4 \cdot 10^{-9}$ to $2.8 \cdot 10^{-7}$ against
 # $1.5 \cdot 10^{-6}$ to $8.8 \cdot 10^{-6}$); at $8.8 \cdot 10^4$ the gmsh mesh graded
 # like this demo's field has the smaller lift error ($5.5 \cdot 10^{-5}$ against
-# $1.6 \cdot 10^{-4}$). Meshing is 9.4 to 10.2 times faster than gmsh's generate and
-# `model_to_mesh` at $7 \cdot 10^5$ with the field, 5.5 to 5.8 times with the adaptive
-# field, in the latest run (README, "DFG per degree of freedom against gmsh", for the
-# table and the earlier run's 5.7-6.5 and 4.3-4.7 times).
+# $6.2 \cdot 10^{-5}$; $1.6 \cdot 10^{-4}$ without the mirror). Over six sizes around
+# that one (`--spread 2`) the medians are $3.4 \cdot 10^{-5}$ here against
+# $4.1 \cdot 10^{-5}$, each ahead at three. Meshing is 12.5 to 13.5 times faster than
+# gmsh's generate and `model_to_mesh` at $7 \cdot 10^5$ with the field, 7.6 to 8.0 times
+# with the adaptive field (README, "DFG per degree of freedom against gmsh", for the
+# table).
 #
 # ## The study
 

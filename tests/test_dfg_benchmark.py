@@ -165,8 +165,9 @@ def test_adaptive_loop(runs):
     """The adaptive rounds: refined where the indicator asks (more cells every round), the
     estimate falling, and the drag and lift at least as close to the reference as on the
     finest fixed level with fewer than twice its dofs (quick: 1.1e5 against 7.6e4 dofs;
-    measured c_D 2.2e-7 against 3.6e-6, c_L 1.3e-4 against 3.2e-5: the bound on c_L is
-    loose, 3e-4, its errors change sign from round to round)."""
+    measured c_D 2.5e-7 against 3.6e-6, c_L 3.1e-5 against 3.2e-5). The bound on c_L,
+    1e-4, is 3x the measured error, as its errors change sign from round to round; the
+    loop without its mirror (refine_size's, about the cylinder's axis) had 1.3e-4 there."""
     summary = runs[1]
     rounds = summary["adaptive"]
     assert 0 < summary["theta"] < 1
@@ -182,7 +183,7 @@ def test_adaptive_loop(runs):
     assert last["n_dofs"] < 2 * fixed["n_dofs"]
     rel = {k: abs(last[k] - REFERENCE[k]) / REFERENCE[k] for k in REFERENCE}
     assert rel["c_D"] < abs(fixed["c_D"] - REFERENCE["c_D"]) / REFERENCE["c_D"]
-    assert rel["c_L"] < 3e-4
+    assert rel["c_L"] < 1e-4
     # the same rounds on two ranks: the marking and the size fields do not depend on the
     # partition (the indicators differ by rounding only)
     for a, b in zip(rounds, runs[2]["adaptive"]):
