@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, overload
+from typing import TYPE_CHECKING, Any, NamedTuple, overload
 
 from mpi4py import MPI
 
@@ -21,7 +21,7 @@ import numpy as np
 import numpy.typing as npt
 
 from . import _tetrahedron
-from ._geometry import lagrange_element
+from ._geometry import Float, lagrange_element
 
 if TYPE_CHECKING:
     from dolfinx import fem
@@ -703,6 +703,101 @@ def _new_figure(figsize: tuple[float, float]) -> tuple[Figure, Axes]:
     return fig, fig.add_subplot()
 
 
+class _ConformingLayers(NamedTuple):
+    """What :func:`plot_conforming` draws, bottom to top: the background's edges, the
+    conforming (or curved) cells, Gamma_h and the exact boundary; and their legend."""
+
+    bg_nodes: Float | None
+    background_edgecolor: Any
+    nodes: Float
+    degree: int
+    variant: Any
+    faces: Any
+    edgecolor: Any
+    points_per_edge: int
+    gamma: Float
+    gamma_h_color: Any
+    gamma_h_linewidth: float | None
+    exact: Float | None
+    boundary_color: Any
+    boundary_linewidth: float
+
+    def draw(self, target: Axes, lw: float, limit: int | None) -> None:
+        """Draw the layers on ``target`` with edges of width ``lw``, the interior edges only
+        up to ``limit`` cells."""
+        from matplotlib.collections import LineCollection
+
+        if self.bg_nodes is not None:
+            plot_mesh(
+                target,
+                self.bg_nodes,
+                1,
+                facecolors="none",
+                edgecolor=self.background_edgecolor,
+                linewidth=lw,
+                zorder=1,
+                max_edge_cells=limit,
+                axis_labels=False,
+            )
+        plot_mesh(
+            target,
+            self.nodes,
+            self.degree,
+            facecolors=self.faces,
+            edgecolor=self.edgecolor,
+            linewidth=lw,
+            points_per_edge=self.points_per_edge,
+            variant=self.variant,
+            zorder=2,
+            max_edge_cells=limit,
+            axis_labels=False,
+        )
+        if len(self.gamma):
+            glw = self.gamma_h_linewidth
+            target.add_collection(
+                LineCollection(
+                    self.gamma,  # type: ignore[arg-type]  # stubs want a Sequence; arrays work
+                    colors=self.gamma_h_color,
+                    linewidths=glw if glw is not None else max(1.0, 3 * lw),
+                    zorder=3,
+                    capstyle="round",
+                ),
+                autolim=False,
+            )
+        if self.exact is not None:
+            target.plot(
+                self.exact[:, 0],
+                self.exact[:, 1],
+                color=self.boundary_color,
+                linewidth=self.boundary_linewidth,
+                zorder=4,
+            )
+
+    def handles(self, shade: bool, kinds: npt.NDArray | None, colours: npt.NDArray) -> list:
+        """Legend entries of the layers: the cells' kinds (``kinds``: per cell, or ``None``
+        for plain cells) if ``shade``, then the lines."""
+        from matplotlib.lines import Line2D
+
+        handles: list = []
+        if shade:
+            handles += _kind_patches(kinds, len(self.nodes), colours, self.edgecolor, self.degree)
+        if self.bg_nodes is not None:
+            handles.append(
+                Line2D([], [], color=self.background_edgecolor, lw=1.0, label="background mesh")
+            )
+        if len(self.gamma):
+            handles.append(
+                Line2D(
+                    [], [], color=self.gamma_h_color, lw=2.5, label=r"$\Gamma_h$ (immersed facets)"
+                )
+            )
+        if self.exact is not None:
+            handles.append(
+                Line2D([], [], color=self.boundary_color, lw=1.2, label=r"$\Gamma$ (exact)")
+            )
+        return handles
+
+
 def plot_conforming(
     ax: Axes | None,
     cm: ConformingMesh,
@@ -802,10 +897,6 @@ def plot_conforming(
         return None, None
     assert nodes is not None  # gathered on rank 0
 
-    from matplotlib.collections import LineCollection
-    from matplotlib.lines import Line2D
-    from matplotlib.patches import Patch
-
     new = ax is None
     if ax is None:
         fig, ax = _new_figure(figsize)
@@ -823,75 +914,20 @@ def plot_conforming(
     exact = boundary_polyline(boundary, boundary_samples) if boundary is not None else None
     lw_main = _auto_linewidth(ax, len(nodes)) if linewidth is None else linewidth
 
-    def draw(target: Axes, lw: float, limit: int | None) -> None:
-        if bg_nodes is not None:
-            plot_mesh(
-                target,
-                bg_nodes,
-                1,
-                facecolors="none",
-                edgecolor=background_edgecolor,
-                linewidth=lw,
-                zorder=1,
-                max_edge_cells=limit,
-                axis_labels=False,
-            )
-        plot_mesh(
-            target,
-            nodes,
-            degree,
-            facecolors=faces,
-            edgecolor=edgecolor,
-            linewidth=lw,
-            points_per_edge=points_per_edge,
-            variant=variant,
-            zorder=2,
-            max_edge_cells=limit,
-            axis_labels=False,
-        )
-        if len(gamma):
-            glw = gamma_h_linewidth if gamma_h_linewidth is not None else max(1.0, 3 * lw)
-            target.add_collection(
-                LineCollection(
-                    gamma,  # type: ignore[arg-type]  # stubs want a Sequence; arrays work
-                    colors=gamma_h_color,
-                    linewidths=glw,
-                    zorder=3,
-                    capstyle="round",
-                ),
-                autolim=False,
-            )
-        if exact is not None:
-            target.plot(
-                exact[:, 0],
-                exact[:, 1],
-                color=boundary_color,
-                linewidth=boundary_linewidth,
-                zorder=4,
-            )
-
-    draw(ax, lw_main, max_edge_cells)
+    layers = _ConformingLayers(
+        bg_nodes, background_edgecolor, nodes, degree, variant, faces, edgecolor,
+        points_per_edge, gamma, gamma_h_color, gamma_h_linewidth, exact, boundary_color,
+        boundary_linewidth,
+    )  # fmt: skip
+    layers.draw(ax, lw_main, max_edge_cells)
     _label_axes(ax)
     ax.autoscale_view()
     if title is not None:
         ax.set_title(title)
 
     if legend:
-        handles: list[Patch | Line2D] = []
-        if shade:
-            handles += _kind_patches(kind if data is not None else None, len(nodes), colours,
-                                     edgecolor, degree)  # fmt: skip
-        if bg_nodes is not None:
-            handles.append(
-                Line2D([], [], color=background_edgecolor, lw=1.0, label="background mesh")
-            )
-        if len(gamma):
-            handles.append(
-                Line2D([], [], color=gamma_h_color, lw=2.5, label=r"$\Gamma_h$ (immersed facets)")
-            )
-        if exact is not None:
-            handles.append(Line2D([], [], color=boundary_color, lw=1.2, label=r"$\Gamma$ (exact)"))
-        _legend(ax, handles, legend)
+        kinds = kind if data is not None else None
+        _legend(ax, layers.handles(shade, kinds, colours), legend)
 
     if inset is None:
         inset = "auto" if new else False
@@ -902,7 +938,10 @@ def plot_conforming(
         inside = _cells_in_window(nodes, (x0, y0, x1, y1))
         lw_in = float(np.clip(3.0 * _auto_linewidth(ax, max(inside, 1) * 6), 0.4, 1.2))
         add_inset(
-            ax, (x0, y0, x1, y1), lambda a: draw(a, lw_in, None), avoid=_legend_corner(legend)
+            ax,
+            (x0, y0, x1, y1),
+            lambda a: layers.draw(a, lw_in, None),
+            avoid=_legend_corner(legend),
         )
     return fig, ax
 
