@@ -59,6 +59,8 @@ from mpi4py import MPI
 import gmsh
 import numpy as np
 from _floor import load_demo
+from dolfinx import graph
+from dolfinx import mesh as dmesh
 from dolfinx.io import gmsh as dgmsh
 
 comm = MPI.COMM_WORLD
@@ -96,8 +98,6 @@ def _count_owned(msh, facets) -> int:
 
 def _near_share(msh) -> float:
     """Share of the cells whose midpoint lies within a diameter of the cylinder's surface."""
-    from dolfinx import mesh as dmesh
-
     owned = msh.topology.index_map(2).size_local
     mid = dmesh.compute_midpoints(msh, 2, np.arange(owned, dtype=np.int32))
     near = np.hypot(mid[:, 0] - demo.centre[0], mid[:, 1] - demo.centre[1]) < 3 * R
@@ -145,7 +145,10 @@ def gmsh_mesh(variant: str, factor: float):
         times["generate_s"] = time.perf_counter() - t
     comm.Barrier()
     t = time.perf_counter()
-    data = dgmsh.model_to_mesh(gmsh.model, comm, 0, gdim=2)
+    # Shared-facet ghosts, as the universal meshes have: the interior-facet integrals of
+    # the demo's error indicators (``--layers``) need them on several ranks.
+    ghosts = dmesh.create_cell_partitioner(graph.partitioner(), dmesh.GhostMode.shared_facet, 2)
+    data = dgmsh.model_to_mesh(gmsh.model, comm, 0, gdim=2, partitioner=ghosts)
     times["model_to_mesh_s"] = comm.allreduce(time.perf_counter() - t, op=MPI.MAX)
     gmsh.finalize()
     times = comm.bcast(times if comm.rank == 0 else None, root=0) | {

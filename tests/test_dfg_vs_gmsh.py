@@ -79,7 +79,7 @@ def test_spread_summary_counts_against_the_graded_mesh_of_the_same_size():
 def test_layers_split_the_lift_estimate(tmp_path):
     """``--layers 0``: for the graded gmsh mesh and the demo's two universal meshes at its
     dofs, the lift's dual-weighted estimate, split into the two halves (which sum to it), and
-    the first layer of cells at the cylinder (a vertex on it)."""
+    the first layer of cells at the cylinder (a vertex on it); the same on two ranks."""
     out_json = tmp_path / "layers.json"
     script = str(ROOT / "benchmarks" / "dfg_vs_gmsh.py")
     out = run_mpi(1, [script, "--layers", "0", "--out", str(out_json)], timeout=600).stdout
@@ -96,3 +96,10 @@ def test_layers_split_the_lift_estimate(tmp_path):
         assert 0 < r["diam_min"] <= r["diam_median"] <= r["diam_max"] < 1, r
         assert 0 < r["first_layer_share_L"] <= 1, r
     assert sum(line.startswith("| ") for line in out.splitlines()) == 1 + len(rows), out
+    # on two ranks (the gmsh mesh with shared-facet ghosts, as the indicators' facet
+    # integrals need): the same numbers up to the solvers' rounding
+    run_mpi(2, [script, "--layers", "0", "--out", str(out_json)], timeout=600)
+    for r, r2 in zip(rows, json.loads(out_json.read_text())["rows"], strict=True):
+        for key, value in r.items():
+            if key.endswith("_L") or key.startswith("diam") or key == "first_layer_cells":
+                assert r2[key] == pytest.approx(value, rel=1e-8, abs=1e-14), (r["mesh"], key)
