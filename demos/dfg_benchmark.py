@@ -386,9 +386,9 @@ def solve_level(level: int, degree: int) -> tuple[dict, fem.Function]:
 # (`refine_size`'s `mirror`: every marked cell also refines at its mirror image). The lift
 # is the difference of the vertical forces on the upper and the lower half of the
 # cylinder, which nearly balance: on a mesh whose halves are refined alike, their
-# discretisation errors nearly cancel too. Marked one cell at a time, the two halves drift
-# apart (the indicators' rounding, the quadtree's pinwheel cells, which have no mirror
-# symmetry), and the halves' errors stop cancelling. `benchmarks/dfg_vs_gmsh.py --layers`
+# discretisation errors nearly cancel too. Marked by the indicators alone, the two halves
+# drift apart (the flow is not quite symmetric, and the quadtree's pinwheel cells have no
+# mirror symmetry), and the halves' errors stop cancelling. `benchmarks/dfg_vs_gmsh.py --layers`
 # shows it: around $9 \cdot 10^4$ degrees of freedom the lift's indicators summed over
 # each half are seven to nine times its error on the graded gmsh mesh and on this demo's
 # field (numbers below).

@@ -909,9 +909,10 @@ def refine_size(
         mirror image, with the same size, so that the new sources are symmetric under the
         reflection. For a domain (nearly) symmetric under it whose quantity of interest is
         a difference of the two halves' contributions, such as the lift on a body in a
-        symmetric flow: marking by an error indicator breaks the symmetry (rounding, the
-        background's cells), and the two halves' discretisation errors, which cancel in the
-        difference on a symmetric refinement, then add up instead.
+        nearly symmetric flow: marking by an error indicator breaks the symmetry (the
+        solution's own asymmetry, the background's cells), and the two halves'
+        discretisation errors, which largely cancel in the difference on a symmetric
+        refinement, then add up instead.
 
     Returns
     -------
