@@ -920,6 +920,7 @@ def refine_size(
     """
     from .background import largest_of_cells
     from .dimensions import cell_kernels
+    from .validation import raise_collective
 
     factor = float(factor)
     if not (0 < factor <= 1):
@@ -929,8 +930,13 @@ def refine_size(
     cmap = top.index_map(tdim)
     num_cells = cmap.size_local + cmap.num_ghosts
     marked = np.unique(np.asarray(cells, dtype=np.int64).reshape(-1))
-    if len(marked) and (marked[0] < 0 or marked[-1] >= num_cells):
-        raise ValueError(f"cells must be local cell indices in [0, {num_cells})")
+    bad = len(marked) and (marked[0] < 0 or marked[-1] >= num_cells)
+    # On every rank (the rest of the function is collective): a rank's own bad indices
+    # would otherwise leave the others waiting.
+    raise_collective(
+        mesh.comm, [f"cells must be local cell indices in [0, {num_cells})"] if bad else [],
+        ValueError,
+    )  # fmt: skip
     # Each cell's vertices: the geometry's first tdim + 1 nodes, in the topology's order.
     nodes = mesh.geometry.dofmaps[0][:num_cells, : tdim + 1]
     diam = cell_kernels(tdim).cell_diameters(mesh.geometry.x, nodes)
@@ -943,14 +949,19 @@ def refine_size(
     marked = marked[marked < cmap.size_local]  # each marked cell once, by its owner
     local_size = vsize[c2v[marked]].max(axis=1) if len(marked) else np.zeros(0)
     centres = mesh.geometry.x[nodes[marked], :gdim].mean(axis=1)
+    problems = []
     if size_field is not None and len(marked):
         # Where the mesh is coarser than the field asks (the longest edge around a cell
         # near a curved boundary can exceed its leaf), the field's own size is the base:
         # otherwise the new source may ask for no less than the field and leave the
         # mesh as it is (an adaptive loop marking the same cells forever).
-        wanted = np.asarray(size_field(centres), dtype=np.float64).reshape(len(marked))
-        local_size = np.minimum(local_size, wanted)
+        try:
+            wanted = np.asarray(size_field(centres), dtype=np.float64).reshape(len(marked))
+            local_size = np.minimum(local_size, wanted)
+        except Exception as e:  # a user's field failing on this rank's points only
+            problems.append(f"refine_size: the size field failed: {type(e).__name__}: {e}")
     comm = mesh.comm
+    raise_collective(comm, problems, ValueError)
     points = np.concatenate(comm.allgather(centres)).reshape(-1, gdim)
     sizes = np.concatenate(comm.allgather(factor * local_size))
     if mirror is not None:

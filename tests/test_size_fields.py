@@ -281,6 +281,27 @@ def test_refine_size_does_not_depend_on_the_partition():
     assert cKDTree(sources[1]).query(sources[0])[0].max() < 1e-12
 
 
+@pytest.mark.mpi
+@needs_ranks(2)
+def test_refine_size_bad_input_on_one_rank_fails_on_every_rank():
+    """A bad cell index, or a size field that fails, on the last rank only: ValueError on
+    every rank (the function is collective: one rank raising alone would leave the others
+    waiting)."""
+    md = du.mesh_domain(comm, CHANNEL, 0.04, box=BOX, size_factor=2)
+    last = comm.rank == comm.size - 1
+    with pytest.raises(ValueError, match="local cell indices"):
+        du.refine_size(md.mesh, [10**9] if last else [0])
+
+    def field(x):
+        if last:
+            raise RuntimeError("no size here")
+        return np.full(len(x), 0.05)
+
+    owned = md.mesh.topology.index_map(2).size_local
+    with pytest.raises(ValueError, match="the size field failed: RuntimeError: no size here"):
+        du.refine_size(md.mesh, np.arange(min(owned, 5)), field)
+
+
 # ----------------------------------------------------------------------------- marking
 def test_mark_cells_is_doerfler():
     """The fewest cells holding the fraction of sum eta^2: the marked cells reach it, and
