@@ -1066,10 +1066,15 @@ def mark_cells(mesh: Any, indicators: npt.ArrayLike, fraction: float = 0.5) -> I
     tdim = mesh.topology.dim
     n = mesh.topology.index_map(tdim).size_local
     eta = np.asarray(indicators, dtype=np.float64).reshape(-1)
-    if len(eta) < n:
-        raise ValueError(f"indicators must have one value per owned cell ({n}), got {len(eta)}")
-    eta = eta[:n]
     comm = mesh.comm
+    # Both checks on every rank: a rank raising alone would leave the others in the gather.
+    short = comm.allreduce(len(eta) < n, op=MPI.LOR)
+    if short:
+        raise ValueError(
+            "indicators must have one value per owned cell on every rank "
+            f"(this rank: {n} cells, {len(eta)} values)"
+        )
+    eta = eta[:n]
     bad = bool(np.any(~(eta >= 0)) | np.any(~np.isfinite(eta)))
     if comm.allreduce(bad, op=MPI.LOR):
         raise ValueError("indicators must be finite and >= 0")

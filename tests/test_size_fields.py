@@ -284,9 +284,9 @@ def test_refine_size_does_not_depend_on_the_partition():
 @pytest.mark.mpi
 @needs_ranks(2)
 def test_refine_size_bad_input_on_one_rank_fails_on_every_rank():
-    """A bad cell index, or a size field that fails, on the last rank only: ValueError on
-    every rank (the function is collective: one rank raising alone would leave the others
-    waiting)."""
+    """A bad cell index, a size field that fails, or (for mark_cells) too few indicators,
+    on the last rank only: ValueError on every rank (the functions are collective: one rank
+    raising alone would leave the others waiting)."""
     md = du.mesh_domain(comm, CHANNEL, 0.04, box=BOX, size_factor=2)
     last = comm.rank == comm.size - 1
     with pytest.raises(ValueError, match="local cell indices"):
@@ -300,6 +300,10 @@ def test_refine_size_bad_input_on_one_rank_fails_on_every_rank():
     owned = md.mesh.topology.index_map(2).size_local
     with pytest.raises(ValueError, match="the size field failed: RuntimeError: no size here"):
         du.refine_size(md.mesh, np.arange(min(owned, 5)), field)
+    # mark_cells: too few indicators on the last rank only
+    eta = np.ones(owned - 1 if last else owned)
+    with pytest.raises(ValueError, match="one value per owned cell"):
+        du.mark_cells(md.mesh, eta, 0.5)
 
 
 # ----------------------------------------------------------------------------- marking
