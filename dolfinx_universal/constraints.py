@@ -44,6 +44,7 @@ from dolfinx.fem import petsc as fem_petsc
 from ._geometry import Float, rot90
 from .conform import IMMERSED
 from .curved import CurvedMesh, boundary_dof_data
+from .validation import collective_call
 
 __all__ = ["ConstrainedNodes", "SlipConstraint", "facet_frames"]
 
@@ -254,8 +255,14 @@ class SlipConstraint:
         self.rotation = self._rotation_matrix()
 
     def _values(self, x: Float) -> Float:
-        g = self.value(x) if callable(self.value) else np.full(len(x), float(self.value))
-        return np.broadcast_to(np.asarray(g, dtype=np.float64), (len(x),)).copy()
+        """The prescribed values at the points ``x`` (collective: the user's ``value`` runs
+        on each rank's own points, and a failure there raises on every rank)."""
+
+        def values() -> Float:
+            g = self.value(x) if callable(self.value) else np.full(len(x), float(self.value))
+            return np.broadcast_to(np.asarray(g, dtype=np.float64), (len(x),)).copy()
+
+        return collective_call(self.comm, "the constraint's value", values, error=RuntimeError)
 
     def _owned(self, blocks: npt.NDArray[np.int32]) -> npt.NDArray[np.bool_]:
         return blocks < self._Vc.dofmap.index_map.size_local

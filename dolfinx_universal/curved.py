@@ -467,7 +467,12 @@ def boundary_dof_data(
     dofs = fem.locate_dofs_topological(V, tdim - 1, facets)
     xd = V.tabulate_dof_coordinates()[dofs, :tdim]
     boundary = curved.conforming.boundary
-    y = boundary.closest_point(xd) if len(dofs) else np.zeros((0, tdim))
-    if tdim == 2:
-        return dofs, y, boundary.normal(y), boundary.tangent(y)
-    return dofs, y, boundary.normal(y), boundary.tangent_basis(y)
+
+    def frames() -> tuple[Float, Float, Float]:
+        y = boundary.closest_point(xd) if len(dofs) else np.zeros((0, tdim))
+        tangent = boundary.tangent(y) if tdim == 2 else boundary.tangent_basis(y)
+        return y, boundary.normal(y), tangent
+
+    # Collective: the projection runs on each rank's own nodes, and fails on all if on one.
+    y, normal, tangent = collective_call(V.mesh.comm, "closest-point projection", frames)
+    return dofs, y, normal, tangent

@@ -42,6 +42,8 @@ from dolfinx import mesh as dmesh
 from dolfinx.fem.petsc import LinearProblem
 from ufl.algorithms import extract_coefficients
 
+from .validation import collective_call
+
 if TYPE_CHECKING:
     from .moving import MovingDomain
 
@@ -701,8 +703,8 @@ class MovingStokes:
         return -r * ufl.Identity(self.gdim) + 2 * self.mu * self.eps(w)
 
     def _set_velocity(self, f: fem.Function, value: VelocityData) -> None:
-        if callable(value):
-            f.interpolate(value)
+        if callable(value):  # the user's function on each rank's own points: collective
+            collective_call(self.md.comm, "the velocity", f.interpolate, value, error=RuntimeError)
         else:
             f.x.array.reshape(-1, self.gdim)[:] = np.asarray(value, dtype=np.float64)
 
@@ -713,11 +715,15 @@ class MovingStokes:
         from .boundaries import Domain
 
         boundary = self.md.boundary
-        if not isinstance(boundary, Domain) or boundary.container is None or len(blocks) == 0:
+        if not isinstance(boundary, Domain) or boundary.container is None:
             return np.ones(len(blocks), dtype=bool)
         x = self.V.tabulate_dof_coordinates()[blocks, : self.gdim]
         is_body = np.array([body for _, body in boundary.components])
-        return is_body[boundary.nearest_component(x)]
+        # On every rank, with its own nodes (maybe none): a failing projection raises on all.
+        nearest = collective_call(
+            self.md.comm, "closest-point projection", boundary.nearest_component, x
+        )
+        return is_body[nearest]
 
     def boundary_conditions(
         self,

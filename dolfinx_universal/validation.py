@@ -125,11 +125,19 @@ def _merge(parts: list[npt.NDArray[np.float64]]) -> npt.NDArray[np.float64]:
     return np.concatenate(full) if full else np.zeros((0, 2))
 
 
-def collective_call(comm: MPI.Comm, what: str, fn: Callable[..., T], *args: Any) -> T:
-    """Call ``fn(*args)`` on every rank; if it raises on any rank, raise on all of them.
+def collective_call(
+    comm: MPI.Comm,
+    what: str,
+    fn: Callable[..., T],
+    *args: Any,
+    error: type[Exception] = MeshingError,
+) -> T:
+    """Call ``fn(*args)`` on every rank; if it raises on any rank, raise ``error`` on all of
+    them.
 
-    User callbacks (boundaries) may fail on the points of one rank only; raising there alone
-    would leave the other ranks waiting in the next collective call.
+    User callbacks (boundaries, velocities, values) may fail on the points of one rank
+    only; raising there alone would leave the other ranks waiting in the next collective
+    call.
     """
     problems: list[Problem] = []
     try:
@@ -139,7 +147,7 @@ def collective_call(comm: MPI.Comm, what: str, fn: Callable[..., T], *args: Any)
     except Exception as e:  # any failure of a user callback, on any subset of the ranks
         text = _literal(f"{what} failed: {type(e).__name__}: {e}")
         result, problems = None, [Problem(text, np.zeros((0, 2)), 1, False)]
-    raise_collective(comm, problems)
+    raise_collective(comm, problems, error)
     return result  # type: ignore[return-value]
 
 
