@@ -16,6 +16,7 @@ from scipy.spatial import Delaunay, QhullError, cKDTree
 
 from ._geometry import Bool, Float, Int, as_box, as_points, cross2, norm2, positive, readonly
 from .boundaries import Boundary
+from .validation import collective_call, raise_collective
 
 __all__ = [
     "FEATURE_DIVISOR",
@@ -920,7 +921,6 @@ def refine_size(
     """
     from .background import largest_of_cells
     from .dimensions import cell_kernels
-    from .validation import raise_collective
 
     factor = float(factor)
     if not (0 < factor <= 1):
@@ -949,21 +949,22 @@ def refine_size(
     marked = marked[marked < cmap.size_local]  # each marked cell once, by its owner
     local_size = vsize[c2v[marked]].max(axis=1) if len(marked) else np.zeros(0)
     centres = mesh.geometry.x[nodes[marked], :gdim].mean(axis=1)
-    problems = []
-    if size_field is not None and len(marked):
+
+    def source_sizes() -> Float:
+        if size_field is None or not len(marked):
+            return local_size
         # Where the mesh is coarser than the field asks (the longest edge around a cell
         # near a curved boundary can exceed its leaf), the field's own size is the base:
         # otherwise the new source may ask for no less than the field and leave the
         # mesh as it is (an adaptive loop marking the same cells forever).
-        try:
-            wanted = np.asarray(size_field(centres), dtype=np.float64).reshape(len(marked))
-            local_size = np.minimum(local_size, wanted)
-        except Exception as e:  # a user's field failing on this rank's points only
-            problems.append(f"refine_size: the size field failed: {type(e).__name__}: {e}")
+        wanted = np.asarray(size_field(centres), dtype=np.float64).reshape(len(marked))
+        return np.minimum(local_size, wanted)
+
     comm = mesh.comm
-    raise_collective(comm, problems, ValueError)
+    # On every rank: a user's field failing on one rank's points raises on all of them.
+    source = collective_call(comm, "refine_size: the size field", source_sizes, error=ValueError)
     points = np.concatenate(comm.allgather(centres)).reshape(-1, gdim)
-    sizes = np.concatenate(comm.allgather(factor * local_size))
+    sizes = np.concatenate(comm.allgather(factor * source))
     if mirror is not None:
         points, sizes = _mirrored(points, sizes, mirror, gdim)
     h_max = comm.allreduce(float(diam[: cmap.size_local].max(initial=0.0)), op=MPI.MAX)
@@ -1067,17 +1068,17 @@ def mark_cells(mesh: Any, indicators: npt.ArrayLike, fraction: float = 0.5) -> I
     n = mesh.topology.index_map(tdim).size_local
     eta = np.asarray(indicators, dtype=np.float64).reshape(-1)
     comm = mesh.comm
-    # Both checks on every rank: a rank raising alone would leave the others in the gather.
-    short = comm.allreduce(len(eta) < n, op=MPI.LOR)
-    if short:
-        raise ValueError(
-            "indicators must have one value per owned cell on every rank "
-            f"(this rank: {n} cells, {len(eta)} values)"
+    problems = []
+    if len(eta) < n:
+        problems.append(
+            f"indicators must have one value per owned cell on every rank (a rank has {n} "
+            f"cells and {len(eta)} values)"
         )
     eta = eta[:n]
-    bad = bool(np.any(~(eta >= 0)) | np.any(~np.isfinite(eta)))
-    if comm.allreduce(bad, op=MPI.LOR):
-        raise ValueError("indicators must be finite and >= 0")
+    if np.any(~(eta >= 0)) or np.any(~np.isfinite(eta)):
+        problems.append("indicators must be finite and >= 0")
+    # On every rank: a rank raising alone would leave the others in the gather.
+    raise_collective(comm, problems, ValueError)
     gathered = comm.gather(eta, root=0)
     tau = None
     if comm.rank == 0:
