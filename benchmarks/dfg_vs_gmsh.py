@@ -282,13 +282,19 @@ def _adaptive_past(most: float) -> None:
 
 
 def _rows_at(
-    level: int, factor: float, variants, families, guesses: dict[str, float]
+    level: int, factor: float, variants, families, guesses: dict[str, float], extra=None
 ) -> list[dict]:
-    """Each gmsh variant at ``factor`` and the universal ``families`` at its dofs, solved."""
+    """Each gmsh variant at ``factor`` and the universal ``families`` at its dofs, solved;
+    with ``extra(mesh, outer, cylinder, solution, quantities) -> dict``, its entries in
+    each row."""
+
+    def more(*args) -> dict:
+        return {} if extra is None else extra(*args)
+
     rows = []
     for variant in variants:
         msh, outer, cylinder, times = gmsh_mesh(variant, factor)
-        q, _ = demo.solve(msh, outer, cylinder, f"gmsh_{level}_{variant}")
+        q, w = demo.solve(msh, outer, cylinder, f"gmsh_{level}_{variant}")
         row = {
             "level": level,
             "variant": variant,
@@ -300,6 +306,7 @@ def _rows_at(
             "near_share": _near_share(msh),
             "mesh_s": times["generate_s"] + times["model_to_mesh_s"],
             **times,
+            **more(msh, outer, cylinder, w, q),
         }
         rows.append(row)
         report(row)
@@ -311,8 +318,8 @@ def _rows_at(
             else:
                 guesses[family] = scale
             tags = md.facet_tags
-            cyl = tags.find(du.IMMERSED)
-            qu, _ = demo.solve(md.mesh, tags.find(du.OUTER), cyl, f"{family}_{level}_{variant}")
+            out, cyl = tags.find(du.OUTER), tags.find(du.IMMERSED)
+            qu, wu = demo.solve(md.mesh, out, cyl, f"{family}_{level}_{variant}")
             row = {
                 "level": level,
                 "variant": variant,
@@ -325,6 +332,7 @@ def _rows_at(
                 "mesh_s": seconds,
                 **knob,
                 "search_tries": tries,
+                **more(md.mesh, out, cyl, wu, qu),
             }
             rows.append(row)
             report(row)
@@ -462,24 +470,12 @@ def wall_layer(msh, outer, cylinder, w, q: dict) -> dict:
 def layers(level: int) -> list[dict]:
     """The graded gmsh mesh at ``level``'s factor and the demo's field and adaptive loop at
     its dofs, each with :func:`wall_layer`: what the lift's error is made of."""
-    msh, outer, cylinder, _ = gmsh_mesh("graded", FACTORS[level])
-    q, w = demo.solve(msh, outer, cylinder, f"gmsh_{level}_layers")
-    rows = [
-        {
-            "mesh": "gmsh graded",
-            **q,
-            **_relative_errors(q),
-            **wall_layer(msh, outer, cylinder, w, q),
-        }
-    ]
-    _adaptive_past(q["n_dofs"])
-    for family in ("universal", "adaptive"):
-        md = matched_mesh(family, q["n_dofs"], demo.level_scale(level))[0]
-        tags = md.facet_tags
-        outer, cylinder = tags.find(du.OUTER), tags.find(du.IMMERSED)
-        qu, wu = demo.solve(md.mesh, outer, cylinder, f"{family}_{level}_layers")
-        rows.append({"mesh": family, **qu, **_relative_errors(qu),
-                     **wall_layer(md.mesh, outer, cylinder, wu, qu)})  # fmt: skip
+    _adaptive_past(1.3e4 * (FACTORS[0] / FACTORS[level]) ** 2)  # past the graded mesh
+    guesses = {family: demo.level_scale(level) for family in FAMILIES}
+    families = ("universal", "adaptive")
+    rows = _rows_at(level, FACTORS[level], ("graded",), families, guesses, extra=wall_layer)
+    for r in rows:
+        r["mesh"] = "gmsh graded" if r["mesh"] == "gmsh" else r["mesh"]
     return rows
 
 
