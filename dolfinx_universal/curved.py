@@ -101,29 +101,44 @@ def _blend(
     ``patterns (r, p, 3)``: cell ``c`` has ``patterns[which[c]]``.
 
     Every cell projects the points ``s a + (1 - s) b`` of the edge parameters ``s`` in
-    ``(0, 1)`` that the patterns need (one per cell at degree 2: the midpoint of the positive
-    edge), in one call of ``closest_point``; ``s = 1`` and ``s = 0`` (the end points) take
-    ``pi_u`` and ``pi_v``, which are their projections.
+    ``(0, 1)`` that its own pattern needs (one per cell at degree 2: the midpoint of the
+    positive edge; 4 at degree 3, where the three patterns together have 6), in one call of
+    ``closest_point``; ``s = 1`` and ``s = 0`` (the end points) take ``pi_u`` and ``pi_v``,
+    which are their projections. A point's projection does not depend on the other points
+    of the call, so a cell's nodes do not depend on the patterns of the others.
     """
-    m = len(edge_u)
+    m, r = len(edge_u), len(patterns)
     s1, need1, s2, need2 = _edge_parameters(patterns)
-    values = np.concatenate([s1[need1], s2[need2]])
-    inner = np.unique(values[(values > 0) & (values < 1)])
-    ns = len(inner)
-    if ns:
-        q = (
-            inner[None, :, None] * edge_u[:, None, :]
-            + (1.0 - inner)[None, :, None] * edge_v[:, None, :]
+    inner = []  # the parameters each pattern projects
+    for j in range(r):
+        values = np.concatenate([s1[j][need1[j]], s2[j][need2[j]]])
+        inner.append(np.unique(values[(values > 0) & (values < 1)]))
+    ns = max((len(v) for v in inner), default=0)
+    groups = [np.flatnonzero(which == j) for j in range(r)]
+    queries = [
+        (
+            v[None, :, None] * edge_u[g][:, None, :]
+            + (1.0 - v)[None, :, None] * edge_v[g][:, None, :]
         )
-        proj = np.asarray(closest_point(q.reshape(-1, 2)), dtype=np.float64).reshape(m, ns, 2)
-    else:
-        proj = np.zeros((m, 0, 2))
-    ext = np.concatenate([proj, pi_u[:, None, :], pi_v[:, None, :]], axis=1)  # s: inner, 1, 0
+        for v, g in zip(inner, groups, strict=True)
+    ]
+    flat = np.concatenate([q.reshape(-1, 2) for q in queries])
+    proj = np.asarray(closest_point(flat), dtype=np.float64) if len(flat) else flat
+    # Per cell: the projections of its parameters (padded to ns), then pi_u (s = 1), pi_v (s = 0).
+    ext = np.empty((m, ns + 2, 2))
+    start = 0
+    for v, g in zip(inner, groups, strict=True):
+        ext[g, : len(v)] = proj[start : start + len(g) * len(v)].reshape(len(g), len(v), 2)
+        start += len(g) * len(v)
+    ext[:, ns], ext[:, ns + 1] = pi_u, pi_v
 
     def slot(s: Float, need: Bool) -> npt.NDArray[np.intp]:
-        j = np.searchsorted(inner, s).clip(0, max(ns - 1, 0))
-        hit = (ns > 0) & (inner[j] == s) if ns else np.zeros(s.shape, dtype=bool)
-        return np.where(need & hit, j, np.where(need & (s <= 0), ns + 1, ns))
+        out = np.where(need & (s <= 0), ns + 1, ns)
+        for j, v in enumerate(inner):
+            if len(v):
+                i = np.searchsorted(v, s[j]).clip(0, len(v) - 1)
+                out[j] = np.where(need[j] & (v[i] == s[j]), i, out[j])
+        return out
 
     rows = np.arange(m)[:, None]
     p1 = ext[rows, slot(s1, need1)[which]]
