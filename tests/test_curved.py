@@ -11,7 +11,13 @@ from dolfinx import fem
 from dolfinx.fem.petsc import LinearProblem
 
 import dolfinx_universal as du
-from dolfinx_universal.curved import _cell_nodes, jacobian_ratio, reference_nodes, transfinite_map
+from dolfinx_universal.curved import (
+    _cell_nodes,
+    jacobian_ratio,
+    map_nodes,
+    reference_nodes,
+    transfinite_map,
+)
 
 comm = MPI.COMM_WORLD
 CENTRE = np.array([0.0123, -0.0234])
@@ -57,6 +63,36 @@ def test_blend_on_edges_and_vertices(disc):
         g = transfinite_map(lam, b[u], b[v], y[u], y[v], y[w], pi)
         lin = t[None, :, None] * y[a][:, None] + (1 - t[None, :, None]) * y[c][:, None]
         assert np.abs(g - lin).max() < 1e-14
+
+
+@pytest.mark.parametrize("degree,per_cell", [(2, 1), (3, 4), (4, 7), (5, 12)])
+def test_each_cell_projects_the_points_of_its_own_pattern(disc, degree, per_cell):
+    """``map_nodes`` projects, for each positively cut triangle, only the edge points of
+    its own node pattern (which local vertex is inside), in one call, and gives the nodes of
+    ``transfinite_map`` cell by cell (an independent route: every node's own points)."""
+    cm = disc
+    pc = np.flatnonzero(cm.positively_cut)
+    calls: list[int] = []
+
+    def counted(p):
+        calls.append(len(p))
+        return cm.boundary.closest_point(p)
+
+    nodes = map_nodes(cm.cells, cm.x, cm.background_x, cm.sign, degree, "G", counted)
+    assert calls == [per_cell * len(pc)]
+    # The inside vertex at each local index occurs: every pattern is exercised.
+    k = np.argmin(cm.sign[cm.cells[pc]], axis=1)
+    assert set(k.tolist()) == {0, 1, 2}
+    lam = reference_nodes(degree)
+    u, v, w = _pc_data(cm)
+    y, b = cm.x, cm.background_x
+    for j in range(3):  # the barycentric points of pattern j: (l_u, l_v, l_w)
+        rows = np.flatnonzero(k == j)
+        pattern = lam[:, [(j + 1) % 3, (j + 2) % 3, j]]
+        ref = transfinite_map(pattern, b[u[rows]], b[v[rows]], y[u[rows]], y[v[rows]],
+                              y[w[rows]], cm.boundary.closest_point)  # fmt: skip
+        # Nodes on the two straight edges are the affine ones in map_nodes: a few ulps.
+        assert np.abs(nodes[pc[rows]] - ref).max() < 1e-14
 
 
 @pytest.mark.parametrize("degree", [2, 3, 6])
