@@ -42,7 +42,7 @@ import numpy as np
 import numpy.typing as npt
 from dolfinx import la
 
-from ._geometry import Float, Int, lagrange_element
+from ._geometry import Float, Int, lagrange_element, project_together
 
 __all__ = ["LOCAL_EDGES", "gamma_entities", "map_nodes", "reference_nodes"]
 
@@ -282,12 +282,8 @@ def map_nodes(
     queries = [
         _contract(prog[0], sc[rows]) for prog, (_, rows) in zip(programs, groups, strict=True)
     ]
-    flat = np.concatenate([q.reshape(-1, 3) for q in queries]) if queries else np.zeros((0, 3))
-    proj = np.asarray(closest_point(flat), dtype=np.float64) if len(flat) else flat
-    start = 0
-    for (points, direct, weights), (_, rows), q in zip(programs, groups, queries, strict=True):
-        pi = proj[start : start + q.size // 3].reshape(q.shape)
-        start += q.size // 3
+    projected = project_together(closest_point, queries, 3)
+    for (points, direct, weights), (_, rows), pi in zip(programs, groups, projected, strict=True):
         if not len(points):
             continue
         delta = pi - _contract(points, yc[rows])

@@ -7,6 +7,7 @@ x and y are read) and triangles ``cells`` ``(m, 3)`` of vertex indices.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import lru_cache
 from typing import Any
 
@@ -135,6 +136,21 @@ def readonly(a: npt.NDArray) -> npt.NDArray:
 def rot90(v: Float) -> Float:
     """Vectors ``(n, 2)`` rotated by +90 degrees (the tangent of an outward normal)."""
     return np.column_stack([-v[:, 1], v[:, 0]])
+
+
+def project_together(
+    closest_point: Callable[[Float], Float], queries: list[Float], dim: int
+) -> list[Float]:
+    """Closest points of the points of every array of ``queries`` (shapes ``(..., dim)``),
+    by one call of ``closest_point`` (none when there is no point); each result has the
+    shape of its query. A point's projection does not depend on the other points of the
+    call, so grouping the queries of several cells changes no value."""
+    if not queries:
+        return []
+    flat = np.concatenate([q.reshape(-1, dim) for q in queries])
+    proj = np.asarray(closest_point(flat), dtype=np.float64) if len(flat) else flat
+    ends = np.cumsum([q.size // dim for q in queries])[:-1]
+    return [p.reshape(q.shape) for p, q in zip(np.split(proj, ends), queries, strict=True)]
 
 
 def _corner_columns(x: Float, cells: Int) -> list[tuple[Float, Float]]:

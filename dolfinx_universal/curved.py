@@ -20,7 +20,7 @@ from dolfinx import fem
 from dolfinx import mesh as dmesh
 
 from . import _curved_tet
-from ._geometry import Bool, Float, any_rows, lagrange_element
+from ._geometry import Bool, Float, any_rows, lagrange_element, project_together
 from .classify import positively_cut
 from .conform import IMMERSED, ConformingMesh
 from .dimensions import cell_kernels
@@ -122,14 +122,10 @@ def _blend(
         )
         for v, g in zip(inner, groups, strict=True)
     ]
-    flat = np.concatenate([q.reshape(-1, 2) for q in queries])
-    proj = np.asarray(closest_point(flat), dtype=np.float64) if len(flat) else flat
     # Per cell: the projections of its parameters (padded to ns), then pi_u (s = 1), pi_v (s = 0).
     ext = np.empty((m, ns + 2, 2))
-    start = 0
-    for v, g in zip(inner, groups, strict=True):
-        ext[g, : len(v)] = proj[start : start + len(g) * len(v)].reshape(len(g), len(v), 2)
-        start += len(g) * len(v)
+    for g, proj in zip(groups, project_together(closest_point, queries, 2), strict=True):
+        ext[g, : proj.shape[1]] = proj
     ext[:, ns], ext[:, ns + 1] = pi_u, pi_v
 
     def slot(s: Float, need: Bool) -> npt.NDArray[np.intp]:
