@@ -273,7 +273,7 @@ def map_nodes(
     """
     lam = reference_nodes(degree)
     yc = y[cells]  # (m, 4, 3)
-    sc = (x_background if kind == "G" else y)[cells]
+    sc = x_background[cells] if kind == "G" else yc  # the corners whose faces are projected
     nodes = np.ascontiguousarray(_contract(lam, yc))  # affine images
     mask = (edges.astype(np.int64) << np.arange(6)).sum(axis=1)
     key = (face.astype(np.int64) + 1) * 64 + mask
