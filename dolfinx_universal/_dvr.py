@@ -153,8 +153,9 @@ def vertex_colours_graph(sub: _Sub, cells: Int, priority: Float) -> Int:
         if sub.map is not None:
             nbits = sub.comm.allreduce(int(colour.max(initial=-1)) + 1, op=MPI.MAX)
             b = 2 ** np.arange(nbits, dtype=np.int64)
-            flags = sub.reduce(((used[:, None] & b[None]) > 0).astype(np.float64), "max")
-            used = (flags > 0).astype(np.int64) @ b
+            sh = sub.shared  # (the other vertices' bits are this rank's alone)
+            flags = ((used[sh, None] & b[None]) > 0).astype(np.float64)
+            used[sh] = (sub.reduce_rows(sh, flags, "max") > 0).astype(np.int64) @ b
     return colour
 
 
@@ -422,12 +423,7 @@ class _Directional:
         over the ranks with ``op``: one row per vertex of ``S``."""
         out = np.full((len(S),) + vals.shape[1:], fill)
         out[at] = vals
-        sub = self.sub
-        if sub.map is None:
-            return out
-        every = np.full((len(sub.vertices),) + vals.shape[1:], fill)
-        every[S] = out
-        return sub.reduce(every, op)[S]
+        return self.sub.reduce_rows(S, out, op)
 
     def visit(self, S: Int, E: Int, turn: int, changed: Bool) -> Int:
         """Work on the vertices ``S`` of one colour, whose entries are ``E`` (collective):

@@ -38,12 +38,13 @@ about 90 % of a 3D conform.
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from mpi4py import MPI
 
 import numpy as np
 import numpy.typing as npt
+from dolfinx import la
 
 from ._geometry import Bool, Float, Int, any_rows, rot90
 from .validation import collective_call, vertex_reduce
@@ -278,9 +279,72 @@ class _Sub:
             self.map, parent = create_sub_index_map(imv, np.asarray(vertices, np.int32), False)
             self.vertices = np.asarray(parent, dtype=np.int32)
             self.size_local = self.map.size_local
+        self._row_vectors: dict[str, tuple[int, la.Vector, Any]] = {}
+        self.shared = self._shared_vertices()
+        self._is_shared = np.zeros(len(self.vertices), dtype=bool)
+        self._is_shared[self.shared] = True
+
+    def _shared_vertices(self) -> Int:
+        """The sub indices of the vertices other ranks also hold: this rank's ghosts and the
+        owned vertices that are ghosts elsewhere (collective; empty on one rank). Only
+        their values take part in a reduction over the ranks."""
+        if self.map is None:
+            return np.zeros(0, dtype=np.int64)
+        from petsc4py import PETSc
+
+        n = self.map.size_local
+        v = la.vector(self.map, 1, dtype=np.float64)
+        v.array[:n] = 0.0
+        v.array[n:] = 1.0
+        v.petsc_vec.ghostUpdate(addv=PETSc.InsertMode.ADD_VALUES, mode=PETSc.ScatterMode.REVERSE)
+        return np.concatenate([np.flatnonzero(v.array[:n] > 0), np.arange(n, len(v.array))])
 
     def reduce(self, values: Float, op: str) -> Float:
-        return values if self.map is None else vertex_reduce(self.map, values, op)
+        """``values`` (one row per sub vertex) reduced over the ranks with ``op``
+        (:func:`~dolfinx_universal.validation.vertex_reduce`; collective): the rows of the
+        shared vertices are reduced, the others are this rank's alone and stay."""
+        if self.map is None:
+            return values
+        out = np.array(values, dtype=np.float64)
+        out[self.shared] = self.reduce_rows(self.shared, out[self.shared], op)
+        return out
+
+    def reduce_rows(self, rows: Int, values: Float, op: str) -> Float:
+        """:meth:`reduce` of the values ``(len(rows), ...)`` of the vertices ``rows`` (sub
+        indices), this rank's other rows taken as the neutral element of ``op`` (``inf``
+        for "min", ``-inf`` for "max", 0 for "sum"): the reduced values of ``rows``
+        (collective; each rank may give other rows).
+
+        The work is that of ``rows`` and of the vertices shared with other ranks, not of all
+        movable vertices: a colour visit's reductions copied and scattered the values of
+        every movable vertex of the rank. A vector per ``op`` keeps the neutral element
+        between calls; only the shared ones of ``rows`` are written, and reset after.
+        """
+        if self.map is None:
+            return values
+        from petsc4py import PETSc
+
+        values = np.asarray(values, dtype=np.float64)
+        out = values.copy()
+        sh = np.flatnonzero(self._is_shared[rows])  # the others have nothing to combine
+        rows, values = rows[sh], values[sh]
+        width = 1 if values.ndim == 1 else int(np.prod(values.shape[1:]))
+        sign, neutral = (-1.0, -np.inf) if op == "min" else (1.0, 0.0 if op == "sum" else -np.inf)
+        vec = self._row_vectors.get(op)
+        if vec is None or vec[0] < width:  # (a power of two: few vectors as widths grow)
+            bs = max(16, 1 << (width - 1).bit_length())
+            v = la.vector(self.map, bs, dtype=np.float64)
+            v.array[:] = neutral
+            vec = self._row_vectors[op] = (bs, v, v.petsc_vec)
+        bs, _, pv = vec
+        arr = vec[1].array.reshape(-1, bs)
+        arr[rows, :width] = sign * values.reshape(len(rows), width)
+        mode = PETSc.InsertMode.ADD_VALUES if op == "sum" else PETSc.InsertMode.MAX_VALUES
+        pv.ghostUpdate(addv=mode, mode=PETSc.ScatterMode.REVERSE)
+        pv.ghostUpdate(addv=PETSc.InsertMode.INSERT_VALUES, mode=PETSc.ScatterMode.FORWARD)
+        out[sh] = (sign * arr[rows, :width]).reshape(values.shape)
+        arr[rows, :width] = neutral
+        return out
 
 
 def vertex_colours(sub: _Sub, cells: Int, priority: Float) -> Int:
@@ -334,8 +398,9 @@ def vertex_colours(sub: _Sub, cells: Int, priority: Float) -> Int:
         if len(starts):
             used[seg] |= np.bitwise_or.reduceat(cmask[cell_of], starts)
         if sub.map is not None:
-            flags = sub.reduce(((used[:, None] & bits[None]) > 0).astype(np.float64), "max")
-            used = (flags > 0).astype(np.int64) @ bits
+            sh = sub.shared  # (the other vertices' bits are this rank's alone)
+            flags = ((used[sh, None] & bits[None]) > 0).astype(np.float64)
+            used[sh] = (sub.reduce_rows(sh, flags, "max") > 0).astype(np.int64) @ bits
     return colour
 
 
@@ -624,6 +689,7 @@ class _Compass:
         self.is_gamma = np.zeros(len(verts), dtype=np.int64)
         self.is_gamma[self.gamma] = 1
         self.row = np.full(len(verts), -1, dtype=np.int64)
+        self.rowof = np.zeros(len(verts), dtype=np.int64)  # scratch: each vertex's row of S
         self.cand = np.zeros((0, nc, 2))
         self.cand_n: Float | None = None
 
@@ -672,9 +738,10 @@ class _Compass:
         if sub.map is None:
             qs, S = qmin, ev[E][starts]
         else:
-            qv = np.full((len(verts), self.nc), np.inf)
-            qv[ev[E][starts]] = qmin
-            qs = sub.reduce(qv, "min")[S]
+            self.rowof[S] = np.arange(len(S))
+            qs = np.full((len(S), self.nc), np.inf)
+            qs[self.rowof[ev[E][starts]]] = qmin
+            qs = sub.reduce_rows(S, qs, "min")
         # The first candidate (fixed order) within TIE of the best, taken if it beats
         # the current position by more than TIE: decisions that rounding cannot flip.
         best = np.argmax(qs >= qs.max(axis=1, initial=-np.inf)[:, None] - TIE, axis=1)

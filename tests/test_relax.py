@@ -392,3 +392,30 @@ def test_vertices_as_good_as_the_background_rest():
     assert q.min() >= ACTIVE_RATIO * q_bg[0]
     far = np.linalg.norm(x0 - x0[v], axis=1) > 0.35
     assert not r.moved[far].any()
+
+
+@pytest.mark.mpi
+@needs_ranks(2)
+def test_sub_reductions_match_vertex_reduce():
+    """``_Sub.reduce`` (only the shared vertices' rows combined) and ``_Sub.reduce_rows``
+    (a subset of rows, different on each rank, the others neutral) give bitwise the values
+    of ``vertex_reduce`` of the whole array, also when called again (the kept vectors return
+    to neutral), on a subset of the vertices of an equilateral background split over the
+    ranks."""
+    from dolfinx_universal.validation import vertex_reduce
+
+    comm = MPI.COMM_WORLD
+    imv = du.equilateral_mesh(comm, BOX, 0.05).topology.index_map(0)
+    g = imv.local_to_global(np.arange(imv.size_local + imv.num_ghosts, dtype=np.int32))
+    sub = _Sub(imv, np.flatnonzero(g % 7 != 3))
+    assert comm.allreduce(len(sub.shared), op=MPI.SUM) > 0  # vertices shared by the ranks
+    key = g[sub.vertices].astype(np.float64)  # the same for a vertex on every rank
+    for width, op in ((1, "min"), (5, "min"), (3, "sum"), (16, "max"), (40, "min"), (2, "min")):
+        vals = np.cos(0.7 * key[:, None] + comm.rank + np.arange(width)[None, :])
+        vals = vals[:, 0] if width == 1 else vals  # rank-dependent values
+        assert np.array_equal(sub.reduce(vals, op), vertex_reduce(sub.map, vals, op))
+        rows = np.flatnonzero(np.sin(3.1 * key + comm.rank + width) > 0.0)  # any rows per rank
+        masked = np.full_like(vals, {"min": np.inf, "max": -np.inf, "sum": 0.0}[op])
+        masked[rows] = vals[rows]
+        expected = vertex_reduce(sub.map, masked, op)[rows]
+        assert np.array_equal(sub.reduce_rows(rows, vals[rows], op), expected)
