@@ -37,9 +37,17 @@ cells and the moved vertices (busiest rank over the mean), and the time and bala
 :func:`~dolfinx_universal.io.redistribute` of the mesh; with ``--solve`` also a P2 Poisson
 solve (CG + GAMG) on the mesh before and after.
 
+``--partition graph`` redistributes the background by DOLFINx's graph partitioner
+(:func:`~dolfinx_universal.io.redistribute`, untimed) before the phases after ``background``:
+the package builds backgrounds in slabs of layers, so the band near Gamma lies on the ranks
+whose slabs the boundary crosses; compact parts share it (and the domain's cells) among all
+ranks. Each run also prints the busiest rank's share of the active cells of the last
+update over the mean.
+
 Run (``--quick``: one small background, for CI)::
 
     python benchmarks/scaling.py [--dim 2|3] [--sizes 1e6 4e6] [--repeats 3] [--quick]
+                                 [--partition layers|graph]
     python benchmarks/scaling.py --mesh-domain 0.04 [--solve]
     for n in 1 2 4 8 16; do mpirun -n $n python benchmarks/scaling.py; done
 
@@ -108,8 +116,9 @@ def fingerprint(cm, curved) -> dict:
     }
 
 
-def run(dim: int, target: float, repeats: int) -> dict:
-    """Median phase times (max over ranks) on a background of about ``target`` cells."""
+def run(dim: int, target: float, repeats: int, partition: str = "layers") -> dict:
+    """Median phase times (max over ranks) on a background of about ``target`` cells; with
+    ``partition="graph"`` the background is redistributed first (untimed)."""
     build, args, domain, kind = case(dim, target)
     times: dict[str, list[float]] = {k: [] for k in PHASES}
     background = None
@@ -118,7 +127,10 @@ def run(dim: int, target: float, repeats: int) -> dict:
         background, t = timed(build, comm, *args)
         times["background"].append(t)
     assert background is not None
-    ncells = comm.allreduce(background.topology.index_map(dim).size_local)
+    if partition == "graph" and comm.size > 1:
+        background = duio.redistribute(background)[0]
+    nlocal = background.topology.index_map(dim).size_local
+    ncells = comm.allreduce(nlocal)
     for _ in range(repeats):
         um, t = timed(du.UniversalMesh, background)
         times["prepare"].append(t)
@@ -142,6 +154,8 @@ def run(dim: int, target: float, repeats: int) -> dict:
         if step:  # the first step is the warm-up
             times["update"].append(t)
     row |= {k: float(np.median(v)) for k, v in times.items()}
+    active = comm.gather(int(np.count_nonzero(md.active_cells < nlocal)), root=0)
+    row["active_balance"] = float(np.max(active) / np.mean(active)) if comm.rank == 0 else 0.0
     row["cells"] = ncells
     row["max_local"] = comm.allreduce(background.topology.index_map(dim).size_local, op=MPI.MAX)
     row["ranks"] = comm.size
@@ -221,6 +235,13 @@ def main() -> None:
         "--quick", action="store_true", help="one small background (2e4 / 8e4 cells), 2 repeats"
     )
     parser.add_argument("--json", help="write the rows to this file")
+    parser.add_argument(
+        "--partition",
+        choices=("layers", "graph"),
+        default="layers",
+        help="the background's partition: as built (slabs of layers) or redistributed by "
+        "DOLFINx's graph partitioner (io.redistribute, untimed)",
+    )
     parser.add_argument("--mesh-domain", type=float, help="time mesh_domain of the torus, h = H")
     parser.add_argument("--solve", action="store_true", help="--mesh-domain: and Poisson solves")
     args = parser.parse_args()
@@ -230,7 +251,7 @@ def main() -> None:
         args.sizes = [1e6, 4e6]
     if args.mesh_domain:
         return mesh_domain_row(args.mesh_domain, args.repeats, args.solve)
-    rows = [run(args.dim, target, args.repeats) for target in args.sizes]
+    rows = [run(args.dim, target, args.repeats, args.partition) for target in args.sizes]
     if args.json and comm.rank == 0:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     if comm.rank == 0:
@@ -244,6 +265,10 @@ def main() -> None:
             print(
                 f"{r['cells']:9d} {r['max_local']:9d} " + " ".join(f"{r[k]:10.4f}" for k in PHASES)
             )
+        print(
+            f"partition: {args.partition}; active cells of the last update, busiest rank over "
+            "the mean: " + ", ".join(f"{r['active_balance']:.2f}" for r in rows)
+        )
         print("the meshes (the same on any number of ranks):")
         for r in rows:
             print(f"{r['cells']:9d} " + ", ".join(f"{k} {r[k]!r}" for k in FINGERPRINT))

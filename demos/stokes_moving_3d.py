@@ -240,10 +240,20 @@ def translation_background(comm: MPI.Comm, h_body: float) -> tuple[dmesh.Mesh, f
         body = np.where(outside > 0, np.inf, body_size(path_distance(x), h_body))
         return np.minimum(np.minimum(body, wall), MAX_LEAF)
 
-    return du.graded_tet_mesh(comm, BOX, target, MAX_LEAF, h_body), h_wall
+    return balanced(du.graded_tet_mesh(comm, BOX, target, MAX_LEAF, h_body)), h_wall
+
+
+def balanced(background: dmesh.Mesh) -> dmesh.Mesh:
+    """On several ranks, the same background redistributed by DOLFINx's graph partitioner."""
+    return du.io.redistribute(background)[0] if background.comm.size > 1 else background
 
 
 # -
+
+# Under MPI the backgrounds are redistributed by DOLFINx's graph partitioner
+# ({py:func}`~dolfinx_universal.io.redistribute`, the same mesh): the package builds them in
+# slabs of cell layers or runs of octree leaves, so the moving body's band and the fluid's
+# cells would lie on the few ranks whose slabs they cross; compact parts share both.
 
 # The background of (b) is the uniform A15 lattice
 # ({py:func}`~dolfinx_universal.background_tet.a15_mesh`, dihedral angles 53–79 degrees) of
@@ -255,7 +265,7 @@ def translation_background(comm: MPI.Comm, h_body: float) -> tuple[dmesh.Mesh, f
 
 # +
 def rotation_background(comm: MPI.Comm, h: float) -> dmesh.Mesh:
-    return du.a15_mesh(comm, BOX, h)
+    return balanced(du.a15_mesh(comm, BOX, h))
 
 
 def half_turn_symmetric(comm: MPI.Comm, msh: dmesh.Mesh, radius: float) -> bool:
