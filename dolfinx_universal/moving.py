@@ -66,10 +66,12 @@ def _balanced(background: dmesh.Mesh) -> dmesh.Mesh:
     """The background, on several ranks redistributed by DOLFINx's graph partitioner
     (:func:`~dolfinx_universal.io.redistribute`; the same global mesh).
 
-    The package's backgrounds keep the parts they are built in: slabs of cell layers (A15,
-    equilateral) or runs of leaves along a space-filling curve (graded). A moving boundary
-    then lies on the few ranks whose parts it crosses, and so do the relaxation's work and
-    the domain's cells; compact parts spread both over all ranks. Measured on the moving
+    The lattice backgrounds keep the slabs of cell layers they are built in (A15,
+    equilateral): a moving boundary then lies on the few ranks whose slabs it crosses, and
+    so do the relaxation's work and the domain's cells; compact parts spread both over more
+    ranks. (Graded backgrounds, runs of leaves along a space-filling curve with most cells
+    near Gamma, share the band about as well as the graph partitioner does: on the propeller
+    demo's, 1.15 against 1.14 times the mean on 4 ranks.) Measured on the moving
     torus of ``benchmarks/conform_floor_3d.py`` (1e6 A15 tetrahedra; the busiest rank's
     share over the mean, slabs -> graph): the relaxation's work 2.07 -> 1.16 on 4 ranks and
     3.50 -> 2.21 on 16, the active cells 2.14 -> 1.24 and 3.88 -> 2.91.
@@ -142,9 +144,10 @@ class MovingDomain:
     Notes
     -----
     Under MPI the background's partition decides how the work near Gamma and the solve on
-    the active cells are shared: the package's backgrounds keep the slabs or curve runs
-    they are built in, so pass ``dolfinx_universal.io.redistribute(background)[0]`` (the
-    same mesh, compact parts; :meth:`from_motion` does it). On the moving torus of
+    the active cells are shared: the lattice backgrounds (A15, equilateral) keep the slabs
+    of layers they are built in, so pass ``dolfinx_universal.io.redistribute(background)[0]``
+    (the same mesh, compact parts; :meth:`from_motion` does it for surfaces). On the
+    moving torus of
     ``benchmarks/conform_floor_3d.py`` (1e6 tetrahedra, 4 ranks) the busiest rank then
     does 1.16 times the mean of the relaxation's work instead of 2.07, and holds 1.24
     times the mean of the active cells instead of 2.14.
@@ -220,16 +223,15 @@ class MovingDomain:
         (as :func:`~dolfinx_universal.domain.mesh_domain` does for one); every position is
         then conformed once, and where a check fails the background is refined there and the
         positions conformed again (at most ``max_rounds`` times). Later :meth:`update` calls
-        check that their boundary stays in the region the background was sized for. On
-        several ranks the background is redistributed by DOLFINx's graph partitioner
-        (compact parts share the moving band and the domain's cells evenly; the same
-        mesh).
+        check that their boundary stays in the region the background was sized for.
 
         Surfaces: a uniform A15 background (every dihedral angle 53-79 degrees) of the
         smallest target size over the positions, on the union of their boxes, halved
         everywhere where a position fails (at most
         :data:`~dolfinx_universal.domain.MAX_CELLS` tetrahedra); later updates are not
-        checked against it.
+        checked against it. On several ranks it is redistributed by DOLFINx's graph
+        partitioner (the same mesh): the lattice is built in slabs of layers, compact parts
+        share the moving band and the domain's cells among more ranks.
 
         Parameters
         ----------
@@ -321,7 +323,7 @@ class MovingDomain:
         ``max_rounds`` times (collective)."""
         rounds = 0
         while True:
-            md = cls(_balanced(background()), degree, map, **options, on_low_quality="raise")
+            md = cls(background(), degree, map, **options, on_low_quality="raise")
             k = 0
             try:
                 for k in range(len(positions)):
@@ -373,7 +375,7 @@ class MovingDomain:
 
         def background() -> dmesh.Mesh:
             union.check_size(MAX_CELLS, rounds)
-            return union.background(comm)
+            return _balanced(union.background(comm))
 
         def refine(points: npt.NDArray[np.float64]) -> bool:
             union.refine(points)  # halved everywhere
