@@ -318,7 +318,8 @@ class _Sub:
         The work is that of ``rows`` and of the vertices shared with other ranks, not of all
         movable vertices: a colour visit's reductions copied and scattered the values of
         every movable vertex of the rank. A vector per ``op`` keeps the neutral element
-        between calls; only the shared ones of ``rows`` are written, and reset after.
+        between calls; only the shared ones of ``rows`` are written, and the shared rows
+        are reset after.
         """
         if self.map is None:
             return values
@@ -343,7 +344,9 @@ class _Sub:
         pv.ghostUpdate(addv=mode, mode=PETSc.ScatterMode.REVERSE)
         pv.ghostUpdate(addv=PETSc.InsertMode.INSERT_VALUES, mode=PETSc.ScatterMode.FORWARD)
         out[sh] = (sign * arr[rows, :width]).reshape(values.shape)
-        arr[rows, :width] = neutral
+        # Back to neutral: the rows written, and every other shared row the scatters may
+        # have filled (an owner's row takes the ghosts' values even where it gave none).
+        arr[self.shared, :width] = neutral
         return out
 
 

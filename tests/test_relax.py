@@ -410,12 +410,19 @@ def test_sub_reductions_match_vertex_reduce():
     sub = _Sub(imv, np.flatnonzero(g % 7 != 3))
     assert comm.allreduce(len(sub.shared), op=MPI.SUM) > 0  # vertices shared by the ranks
     key = g[sub.vertices].astype(np.float64)  # the same for a vertex on every rank
-    for width, op in ((1, "min"), (5, "min"), (3, "sum"), (16, "max"), (40, "min"), (2, "min")):
-        vals = np.cos(0.7 * key[:, None] + comm.rank + np.arange(width)[None, :])
+    calls = ((1, "min"), (5, "min"), (3, "sum"), (16, "max"), (40, "min"), (2, "min"), (3, "sum"))
+    for call, (width, op) in enumerate(calls):
+        vals = np.cos(0.7 * key[:, None] + comm.rank + 1.3 * call + np.arange(width)[None, :])
         vals = vals[:, 0] if width == 1 else vals  # rank-dependent values
+        n = sub.map.size_local
+        ghosts = np.arange(n, len(key))
+        for rows in (  # rows given per rank; calls in a row: one must not leave values behind
+            np.flatnonzero(np.sin(3.1 * key + comm.rank + call) > 0.0),
+            ghosts[(ghosts + call) % 2 == 0],  # ghosts only: their owners give nothing
+            ghosts[(ghosts + call) % 3 == 0],
+        ):
+            masked = np.full_like(vals, {"min": np.inf, "max": -np.inf, "sum": 0.0}[op])
+            masked[rows] = vals[rows]
+            expected = vertex_reduce(sub.map, masked, op)[rows]
+            assert np.array_equal(sub.reduce_rows(rows, vals[rows], op), expected)
         assert np.array_equal(sub.reduce(vals, op), vertex_reduce(sub.map, vals, op))
-        rows = np.flatnonzero(np.sin(3.1 * key + comm.rank + width) > 0.0)  # any rows per rank
-        masked = np.full_like(vals, {"min": np.inf, "max": -np.inf, "sum": 0.0}[op])
-        masked[rows] = vals[rows]
-        expected = vertex_reduce(sub.map, masked, op)[rows]
-        assert np.array_equal(sub.reduce_rows(rows, vals[rows], op), expected)
