@@ -152,10 +152,7 @@ def vertex_colours_graph(sub: _Sub, cells: Int, priority: Float) -> Int:
         np.bitwise_or.at(used, nb, np.left_shift(1, c))
         if sub.map is not None:
             nbits = sub.comm.allreduce(int(colour.max(initial=-1)) + 1, op=MPI.MAX)
-            b = 2 ** np.arange(nbits, dtype=np.int64)
-            sh = sub.shared  # (the other vertices' bits are this rank's alone)
-            flags = ((used[sh, None] & b[None]) > 0).astype(np.float64)
-            used[sh] = (sub.reduce_rows(sh, flags, "max") > 0).astype(np.int64) @ b
+            sub.combine_bits(used, 2 ** np.arange(nbits, dtype=np.int64))
     return colour
 
 

@@ -47,7 +47,7 @@ import numpy.typing as npt
 from dolfinx import la
 
 from ._geometry import Bool, Float, Int, any_rows, rot90
-from .validation import collective_call, vertex_reduce
+from .validation import collective_call, combine_ghosts, reduce_sign, vertex_reduce
 
 if TYPE_CHECKING:
     from dolfinx.common import IndexMap
@@ -290,13 +290,11 @@ class _Sub:
         their values take part in a reduction over the ranks."""
         if self.map is None:
             return np.zeros(0, dtype=np.int64)
-        from petsc4py import PETSc
-
         n = self.map.size_local
         v = la.vector(self.map, 1, dtype=np.float64)
         v.array[:n] = 0.0
         v.array[n:] = 1.0
-        v.petsc_vec.ghostUpdate(addv=PETSc.InsertMode.ADD_VALUES, mode=PETSc.ScatterMode.REVERSE)
+        combine_ghosts(v.petsc_vec, "sum")  # owned entries: how many ranks ghost them
         return np.concatenate([np.flatnonzero(v.array[:n] > 0), np.arange(n, len(v.array))])
 
     def reduce(self, values: Float, op: str) -> Float:
@@ -321,33 +319,40 @@ class _Sub:
         between calls; only the shared ones of ``rows`` are written, and the shared rows
         are reset after.
         """
+        sign = reduce_sign(op)
         if self.map is None:
             return values
-        from petsc4py import PETSc
-
         values = np.asarray(values, dtype=np.float64)
         out = values.copy()
         sh = np.flatnonzero(self._is_shared[rows])  # the others have nothing to combine
         rows, values = rows[sh], values[sh]
         width = 1 if values.ndim == 1 else int(np.prod(values.shape[1:]))
-        sign, neutral = (-1.0, -np.inf) if op == "min" else (1.0, 0.0 if op == "sum" else -np.inf)
+        neutral = 0.0 if op == "sum" else -np.inf  # as stored (times sign)
         vec = self._row_vectors.get(op)
         if vec is None or vec[0] < width:  # (a power of two: few vectors as widths grow)
             bs = max(16, 1 << (width - 1).bit_length())
             v = la.vector(self.map, bs, dtype=np.float64)
             v.array[:] = neutral
             vec = self._row_vectors[op] = (bs, v, v.petsc_vec)
-        bs, _, pv = vec
-        arr = vec[1].array.reshape(-1, bs)
+        bs, v, pv = vec
+        arr = v.array.reshape(-1, bs)
         arr[rows, :width] = sign * values.reshape(len(rows), width)
-        mode = PETSc.InsertMode.ADD_VALUES if op == "sum" else PETSc.InsertMode.MAX_VALUES
-        pv.ghostUpdate(addv=mode, mode=PETSc.ScatterMode.REVERSE)
-        pv.ghostUpdate(addv=PETSc.InsertMode.INSERT_VALUES, mode=PETSc.ScatterMode.FORWARD)
+        combine_ghosts(pv, op)
         out[sh] = (sign * arr[rows, :width]).reshape(values.shape)
         # Back to neutral: the rows written, and every other shared row the scatters may
         # have filled (an owner's row takes the ghosts' values even where it gave none).
         arr[self.shared, :width] = neutral
         return out
+
+    def combine_bits(self, used: npt.NDArray[np.int64], bits: npt.NDArray[np.int64]) -> None:
+        """OR the bit masks ``used`` (one per sub vertex, bits among ``bits``) of the shared
+        vertices over the ranks, in place (collective; nothing on one rank): the colourings'
+        masks of the colours taken around each vertex."""
+        if self.map is None:
+            return
+        sh = self.shared  # (the other vertices' bits are this rank's alone)
+        flags = ((used[sh, None] & bits[None]) > 0).astype(np.float64)
+        used[sh] = (self.reduce_rows(sh, flags, "max") > 0).astype(np.int64) @ bits
 
 
 def vertex_colours(sub: _Sub, cells: Int, priority: Float) -> Int:
@@ -400,10 +405,7 @@ def vertex_colours(sub: _Sub, cells: Int, priority: Float) -> Int:
         cmask = np.bitwise_or.reduce(cbits, axis=1)
         if len(starts):
             used[seg] |= np.bitwise_or.reduceat(cmask[cell_of], starts)
-        if sub.map is not None:
-            sh = sub.shared  # (the other vertices' bits are this rank's alone)
-            flags = ((used[sh, None] & bits[None]) > 0).astype(np.float64)
-            used[sh] = (sub.reduce_rows(sh, flags, "max") > 0).astype(np.int64) @ bits
+        sub.combine_bits(used, bits)
     return colour
 
 

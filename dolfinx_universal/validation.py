@@ -190,8 +190,7 @@ def vertex_reduce(index_map, values: npt.ArrayLike, op: str = "sum") -> npt.NDAr
     -------
     The reduced values on owned and ghost vertices, shaped as ``values``.
     """
-    if op not in ("sum", "max", "min"):
-        raise ValueError(f"op must be 'sum', 'max' or 'min', got {op!r}")
+    sign = reduce_sign(op)
     values = np.asarray(values, dtype=np.float64)
     if values.ndim not in (1, 2) or len(values) != index_map.size_local + index_map.num_ghosts:
         raise ValueError(
@@ -200,16 +199,36 @@ def vertex_reduce(index_map, values: npt.ArrayLike, op: str = "sum") -> npt.NDAr
         )
     if index_map.comm.size == 1:
         return values.copy()
-    from petsc4py import PETSc
-
     bs = 1 if values.ndim == 1 else values.shape[1]
     if bs == 0:
         return values.copy()
-    sign = -1.0 if op == "min" else 1.0  # min(a, b) = -max(-a, -b)
     vec, pv = _ghosted_vector(index_map, bs)
     vec.array[:] = sign * values.ravel()
-    mode = PETSc.InsertMode.ADD_VALUES if op == "sum" else PETSc.InsertMode.MAX_VALUES
-    pv.ghostUpdate(addv=mode, mode=PETSc.ScatterMode.REVERSE)
-    pv.ghostUpdate(addv=PETSc.InsertMode.INSERT_VALUES, mode=PETSc.ScatterMode.FORWARD)
+    combine_ghosts(pv, op)
     out = sign * vec.array.reshape(values.shape)
     return out
+
+
+def reduce_sign(op: str) -> float:
+    """The factor that turns a reduction ``op`` over the ranks into a sum or a maximum of
+    stored values: -1 for "min" (``min(a, b) = -max(-a, -b)``), 1 for "sum" and "max".
+
+    Raises
+    ------
+    ValueError
+        For any other ``op``.
+    """
+    if op not in ("sum", "max", "min"):
+        raise ValueError(f"op must be 'sum', 'max' or 'min', got {op!r}")
+    return -1.0 if op == "min" else 1.0
+
+
+def combine_ghosts(petsc_vec: Any, op: str) -> None:
+    """Combine the owned and ghost entries of a ghosted PETSc vector over the ranks (values
+    stored times :func:`reduce_sign`): the ghosts' values added to ("sum") or maxed into
+    their owners', then the owners' results copied to every ghost (collective)."""
+    from petsc4py import PETSc
+
+    mode = PETSc.InsertMode.ADD_VALUES if op == "sum" else PETSc.InsertMode.MAX_VALUES
+    petsc_vec.ghostUpdate(addv=mode, mode=PETSc.ScatterMode.REVERSE)
+    petsc_vec.ghostUpdate(addv=PETSc.InsertMode.INSERT_VALUES, mode=PETSc.ScatterMode.FORWARD)
