@@ -21,6 +21,7 @@ from dolfinx import mesh as dmesh
 
 from . import _curved_tet
 from ._geometry import Bool, Float, any_rows, lagrange_element, project_together
+from ._lagrange import lagrange_geometry
 from .classify import positively_cut
 from .conform import IMMERSED, ConformingMesh
 from .dimensions import cell_kernels
@@ -403,9 +404,15 @@ def curved_mesh(
     kernels = cell_kernels(tdim)
     kind = "G" if map in ("I", "G") else "G~"
     ce = _coordinate_element(kernels.cell_type, degree)
-    # The interpolated geometry is the affine image of every cell: only the curved cells
-    # change (affine on their straight entities, so shared nodes agree).
-    msh = fem.interpolate_geometry(cm.mesh, ce)
+    # The degree-q geometry is the affine image of every cell: only the curved cells change
+    # (affine on their straight entities, so shared nodes agree). Tetrahedra: numbered from
+    # the entities (``_lagrange``), 1.1-2.6x faster than DOLFINx's reordered dof layout on
+    # 1e5-2e5 cells at q = 2, 3; triangles: DOLFINx's is the faster (measured 15 against
+    # 17 ms at q = 2, 26 against 34 ms at q = 3 on 1e5 cells).
+    if tdim == 3:
+        msh = lagrange_geometry(cm.mesh, ce)
+    else:
+        msh = fem.interpolate_geometry(cm.mesh, ce)
     cells = cm.cells
     pc, cell_map = _curved_cells(cm, degree, kind)
     dofmap = msh.geometry.dofmaps[0]

@@ -98,6 +98,20 @@ def affine_geometry(msh: dmesh.Mesh, degree: int) -> np.ndarray:
     return fem.interpolate_geometry(msh, ce).geometry.x[:, :2].copy()
 
 
+def in_affine_numbering(curved: dmesh.Mesh, msh: dmesh.Mesh, degree: int) -> np.ndarray:
+    """The nodes ``(n, 2)`` of a degree-q mesh on the topology of ``msh``, numbered as
+    :func:`affine_geometry` numbers them: cell by cell, the same reference node.
+
+    A geometry is defined by each cell's nodes, not by the numbering of the nodes, which
+    ``curved_mesh`` chooses itself (``_lagrange``) and ``interpolate_geometry`` by a graph
+    reordering."""
+    ce = fem.coordinate_element(dmesh.CellType.triangle, degree, basix.LagrangeVariant.gll_warped)
+    reference = fem.interpolate_geometry(msh, ce).geometry
+    x = np.empty((len(reference.x), 2))
+    x[reference.dofmaps[0]] = curved.geometry.x[curved.geometry.dofmaps[0], :2]
+    return x
+
+
 def curved_nodes(x: np.ndarray, affine: np.ndarray) -> dict[str, np.ndarray]:
     """Nodes of ``x`` away from their affine position: indices and coordinates."""
     idx = np.flatnonzero(np.abs(x - affine).max(axis=1) > AFFINE_TOL).astype(np.int32)
@@ -134,12 +148,13 @@ def conform_outputs(background: dmesh.Mesh, boundary: du.Boundary, options: dict
     for q in (2, 3):
         cv = du.curved_mesh(cm, q)
         for key, value in curved_nodes(
-            cv.mesh.geometry.x[:, :2], affine_geometry(cm.mesh, q)
+            in_affine_numbering(cv.mesh, cm.mesh, q), affine_geometry(cm.mesh, q)
         ).items():
             out[f"curved{q}_{key}"] = value
         out[f"curved{q}_ratio"] = np.array(cv.min_jacobian_ratio)
     cv = du.curved_mesh(cm, 2, "I~")
-    for key, value in curved_nodes(cv.mesh.geometry.x[:, :2], affine_geometry(cm.mesh, 2)).items():
+    x = in_affine_numbering(cv.mesh, cm.mesh, 2)
+    for key, value in curved_nodes(x, affine_geometry(cm.mesh, 2)).items():
         out[f"curved2t_{key}"] = value
     return out
 
