@@ -68,21 +68,29 @@ def equilateral(comm: MPI.Comm, cells: float) -> dmesh.Mesh:
 
 
 def timed_pairs(
-    comm: MPI.Comm, fns: dict[str, Callable[[int], object]], repeats: int
+    comm: MPI.Comm, fns: dict[str, Callable[[int], object]], repeats: int, apart: bool = False
 ) -> dict[str, float]:
     """Median seconds (maximum over ranks) of each ``fn(step)``, the functions interleaved.
 
-    Step 0 is a warm-up (not timed); steps ``1..repeats`` are timed.
+    Step 0 is a warm-up (not timed); steps ``1..repeats`` are timed. ``apart``: all steps of
+    one function, then all of the next. The two orders can differ by more than the machine's
+    drift where the functions allocate differently: interleaved, one side's page faults
+    land on memory the other freed (glibc trims and re-grows its heap), apart each side
+    pays its own.
     """
     times: dict[str, list[float]] = {k: [] for k in fns}
-    for step in range(repeats + 1):
-        for key, fn in fns.items():
-            comm.Barrier()
-            t = time.perf_counter()
-            fn(step)
-            dt = comm.allreduce(time.perf_counter() - t, op=MPI.MAX)
-            if step:
-                times[key].append(dt)
+    order = (
+        [(step, key) for key in fns for step in range(repeats + 1)]
+        if apart
+        else [(step, key) for step in range(repeats + 1) for key in fns]
+    )
+    for step, key in order:
+        comm.Barrier()
+        t = time.perf_counter()
+        fns[key](step)
+        dt = comm.allreduce(time.perf_counter() - t, op=MPI.MAX)
+        if step:
+            times[key].append(dt)
     return {k: float(np.median(v)) for k, v in times.items()}
 
 

@@ -11,7 +11,12 @@ moved by fractions of ``h`` from step to step; about 1e6 tetrahedra, 8e4 with ``
   ``closest_point`` is general). The package also finds the entities of Gamma_h, blends the
   nodes into the cells and proves every curved cell valid (Bernstein bounds of ``det J``):
   work the floor does not do. The meshes' edges and faces are created before the timing
-  (both sides need them: the degree-q geometry has nodes on them).
+  (both sides need them: the degree-q geometry has nodes on them), and so are the
+  entities' permutations: ``interpolate_geometry`` computes them at q >= 3 (two nodes on an
+  edge), ``curved_mesh`` does not need them (it numbers its nodes itself), but a degree-q
+  function space on the mesh does, so the cost (25 / 12 ms on a fresh ball / torus mesh) is
+  the user's either way; left in, it would land on whichever side runs first on each
+  fresh mesh.
 * ``MovingDomain.update`` (q = 2, ``I~``) against its floor: the straight map of
   ``conform_floor_3d.ConformFloor3D`` (classification of every vertex, closest points of
   the positive faces' vertices) and the degree-2 nodes of the cells with a vertex on Gamma
@@ -20,9 +25,12 @@ moved by fractions of ``h`` from step to step; about 1e6 tetrahedra, 8e4 with ``
   floor), then with it (the default), and the relaxation's share of the relaxed update.
 
 All calls of a row group are interleaved at every step (one untimed warm-up step), medians
-of ``--repeats`` steps, maximum over ranks.
+of ``--repeats`` steps, maximum over ranks; ``--apart`` times the ``curved_mesh`` rows one
+side after the other instead (all steps of the package, then all of the floor): the
+allocator can move the two orders apart by more than the machine's drift
+(``_floor.timed_pairs``).
 
-Run: ``python benchmarks/curved_floor_3d.py [--quick] [--repeats N] [--cells N]``; also
+Run: ``python benchmarks/curved_floor_3d.py [--quick] [--repeats N] [--cells N] [--apart]``; also
 under mpirun.
 """
 
@@ -44,16 +52,19 @@ import dolfinx_universal as du
 LABELS = {"sphere": "ball r=0.8", "torus": "torus R=0.55 r=0.3"}
 
 
-def curved_rows(comm, background, kind: str, repeats: int) -> list[tuple[str, float, float]]:
+def curved_rows(
+    comm, background, kind: str, repeats: int, apart: bool = False
+) -> list[tuple[str, float, float]]:
     """``curved_mesh`` against ``interpolate_geometry`` plus the projections, q = 2, 3."""
     um = du.UniversalMesh(background)
     h = float(comm.allreduce(float(um.h.max()) if len(um.h) else 0.0, op=MPI.MAX))
     meshes = [um.conform(surfaces(kind, h, step)) for step in range(repeats + 1)]
-    for cm in meshes:  # edges and faces, which both sides need (untimed)
+    for cm in meshes:  # edges, faces and their permutations (untimed: see the docstring)
         cm.mesh.topology.create_entities(1)
         cm.mesh.topology.create_connectivity(3, 1)
         cm.mesh.topology.create_connectivity(3, 2)
         cm.mesh.topology.create_connectivity(2, 3)
+        cm.mesh.topology.create_entity_permutations()
     rows = []
     for q in (2, 3):
         ce = fem.coordinate_element(dmesh.CellType.tetrahedron, q, basix.LagrangeVariant.gll_warped)
@@ -66,7 +77,7 @@ def curved_rows(comm, background, kind: str, repeats: int) -> list[tuple[str, fl
             x[nodes] = floor_of(surfaces(kind, h, step)).project(x[nodes])
 
         fns = {"package": lambda step, q=q: du.curved_mesh(meshes[step], q, "I~"), "floor": floor}
-        t = timed_pairs(comm, fns, repeats)
+        t = timed_pairs(comm, fns, repeats, apart)
         n = meshes[0].mesh.topology.index_map(3).size_global
         rows.append((f"curved_mesh q={q}, {n} tets, {LABELS[kind]}", t["package"], t["floor"]))
     return rows
@@ -131,6 +142,11 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="8e4 tetrahedra, 3 repeats")
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--cells", type=float, default=1e6)
+    parser.add_argument(
+        "--apart",
+        action="store_true",
+        help="curved_mesh rows: time all steps of each side in turn, not interleaved",
+    )
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
     repeats = 3 if args.quick else args.repeats
@@ -138,7 +154,7 @@ def main() -> None:
     bg = du.a15_mesh(comm, box, h)
     curved, update, shares = [], [], []
     for kind in ("sphere", "torus"):
-        curved += curved_rows(comm, bg, kind, repeats)
+        curved += curved_rows(comm, bg, kind, repeats, args.apart)
         rows, share = update_rows(comm, bg, kind, repeats)
         update += rows
         shares.append((LABELS[kind], share))

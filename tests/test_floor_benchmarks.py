@@ -61,3 +61,22 @@ def test_conform_vs_gmsh_3d_quick(tmp_path):
         assert q["n_inverted"] == 0 and sum(q["dihedral_histogram"]) == 6 * q["n_cells"]
     # the universal mesh's dihedral angles are better at both ends
     assert uq["theta_min_deg"] > gq["theta_min_deg"] and uq["theta_max_deg"] < gq["theta_max_deg"]
+
+
+def test_timed_pairs_interleaves_or_times_apart():
+    """``timed_pairs`` calls the functions step by step, or (``apart``) one after the other."""
+    import sys
+
+    from mpi4py import MPI
+
+    sys.path.insert(0, str(ROOT / "benchmarks"))
+    from _floor import timed_pairs
+
+    calls: list[tuple[str, int]] = []
+    fns = {key: (lambda step, key=key: calls.append((key, step))) for key in ("a", "b")}
+    times = timed_pairs(MPI.COMM_SELF, fns, 2)
+    assert calls == [("a", 0), ("b", 0), ("a", 1), ("b", 1), ("a", 2), ("b", 2)]
+    assert set(times) == {"a", "b"} and min(times.values()) >= 0
+    calls.clear()
+    timed_pairs(MPI.COMM_SELF, fns, 2, apart=True)
+    assert calls == [("a", 0), ("a", 1), ("a", 2), ("b", 0), ("b", 1), ("b", 2)]
