@@ -13,7 +13,7 @@ entity's vertices: a cell's reference node maps to the entity's slot of that key
 curved maps then overwrite the nodes of the few curved cells.
 
 No reordering: the nodes lie in entity order, which keeps the locality of the topology's
-own numbering. ``curved_mesh`` uses it for tetrahedra, where it is 1.1-2.6x faster than
+own numbering. ``curved_mesh`` uses it for tetrahedra, where it is 1.3-2.5x faster than
 ``interpolate_geometry`` (1e5-2e5 cells, q = 2 and 3: DOLFINx's reordering of the
 function-space dofs dominates there); for triangles DOLFINx's is the faster, and stays.
 """
