@@ -24,9 +24,9 @@ from dolfinx_universal._lagrange import lagrange_geometry
 DEGREES = {"triangle": (1, 2, 3, 4, 5, 7), "tetrahedron": (1, 2, 3, 4, 5)}
 
 
-def distorted(cell: str) -> dmesh.Mesh:
+def distorted(cell: str, mode: dmesh.GhostMode = dmesh.GhostMode.shared_facet) -> dmesh.Mesh:
     """A unit square (cube) mesh with its vertices moved: cells of different shapes."""
-    comm, mode = MPI.COMM_WORLD, dmesh.GhostMode.shared_facet
+    comm = MPI.COMM_WORLD
     msh = (
         dmesh.create_unit_square(comm, 9, 7, ghost_mode=mode)
         if cell == "triangle"
@@ -45,9 +45,10 @@ def both(msh: dmesh.Mesh, degree: int) -> tuple[dmesh.Mesh, dmesh.Mesh]:
 
 
 @pytest.mark.mpi
+@pytest.mark.parametrize("mode", [dmesh.GhostMode.shared_facet, dmesh.GhostMode.none])
 @pytest.mark.parametrize("cell", list(DEGREES))
-def test_the_geometry_is_dolfinx_interpolated_one(cell):
-    msh = distorted(cell)
+def test_the_geometry_is_dolfinx_interpolated_one(cell, mode):
+    msh = distorted(cell, mode)
     for degree in DEGREES[cell]:
         theirs, ours = both(msh, degree)
         a, b = theirs.geometry, ours.geometry
@@ -67,11 +68,13 @@ def test_the_geometry_is_dolfinx_interpolated_one(cell):
 
 
 @pytest.mark.mpi
+@pytest.mark.parametrize("mode", [dmesh.GhostMode.shared_facet, dmesh.GhostMode.none])
 @pytest.mark.parametrize("cell", list(DEGREES))
-def test_each_global_node_has_one_position(cell):
-    """The ghost nodes carry their owners' numbers: a global node, one point on all ranks."""
+def test_each_global_node_has_one_position(cell, mode):
+    """The ghost nodes carry their owners' numbers: a global node, one point on all ranks
+    (with ghost cells, and without: then only vertices, edges and faces are shared)."""
     comm = MPI.COMM_WORLD
-    msh = distorted(cell)
+    msh = distorted(cell, mode)
     for degree in DEGREES[cell]:
         geometry = both(msh, degree)[1].geometry
         imap = geometry.index_map()
