@@ -153,8 +153,18 @@ def lagrange_geometry(msh: dmesh.Mesh, element: fem.CoordinateElement) -> dmesh.
     Returns
     -------
     A mesh sharing ``msh``'s topology, each node the affine image of its reference point.
+
+    Raises
+    ------
+    ValueError
+        If ``msh`` is not a degree-1 mesh of triangles or tetrahedra.
     """
     topology, geometry = msh.topology, msh.geometry
+    if geometry.cmaps[0].degree != 1 or topology.cell_name() not in ("triangle", "tetrahedron"):
+        raise ValueError(
+            "lagrange_geometry needs a degree-1 mesh of triangles or tetrahedra, got a degree-"
+            f"{geometry.cmaps[0].degree} mesh of {topology.cell_name()}s"
+        )
     tdim, comm, degree = topology.dim, msh.comm, element.degree
     cell = topology.cell_name()
     slots, keys, entity_vertices = _layout(cell, degree)

@@ -103,3 +103,14 @@ def test_ranks_without_cells(cell):
         assert len(b.dofmaps[0]) == len(mine)
         np.testing.assert_allclose(b.x[b.dofmaps[0]], a.x[a.dofmaps[0]], rtol=0, atol=1e-15)
         assert b.index_map().size_global == a.index_map().size_global
+
+
+def test_only_straight_simplices():
+    """A curved or a quadrilateral mesh is refused (its nodes are not vertices)."""
+    msh = distorted("triangle")
+    curved, _ = both(msh, 2)
+    with pytest.raises(ValueError, match="degree-2 mesh of triangles"):
+        lagrange_geometry(curved, curved.geometry.cmaps[0])
+    quads = dmesh.create_unit_square(MPI.COMM_WORLD, 2, 2, dmesh.CellType.quadrilateral)
+    with pytest.raises(ValueError, match="quadrilaterals"):
+        lagrange_geometry(quads, quads.geometry.cmaps[0])
