@@ -35,7 +35,7 @@ from dolfinx import fem
 from dolfinx import mesh as dmesh
 from dolfinx.common import IndexMap
 
-from ._geometry import Float, Int, readonly
+from ._geometry import Float, Int, lagrange_element, readonly
 
 __all__ = ["lagrange_geometry"]
 
@@ -67,12 +67,9 @@ def _layout(cell: str, degree: int) -> tuple[Int, tuple[Float, ...], tuple[Int, 
     vertices
         ``vertices[d - 1][e]``: the cell-local vertices of local entity ``e``, ``(ne, d + 1)``.
     """
-    ctype = getattr(basix.CellType, cell)
-    element = basix.create_element(
-        basix.ElementFamily.P, ctype, degree, basix.LagrangeVariant.gll_warped
-    )
+    element = lagrange_element(cell, degree)
     bary = np.column_stack([1.0 - element.points.sum(axis=1), element.points])
-    topology = basix.topology(ctype)
+    topology = basix.topology(basix.CellType[cell])
     tdim = len(topology) - 1
     order = np.concatenate([np.concatenate(dofs) for dofs in element.entity_dofs])
     if not np.array_equal(order, np.arange(element.dim)):
