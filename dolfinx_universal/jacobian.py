@@ -319,7 +319,7 @@ def jacobian_bounds(
     if tetrahedra:
         order = 3 * (degree - 1)
         det0 = _tet.affine_determinant(nodes)
-        det = _tet.determinant(nodes, _tet.lattice_derivatives(degree))
+        det = _tet.lattice_determinant(nodes, degree)
         split, nchildren = _tet.subdivision(order), 8
         max_depth = 6 if max_depth is None else max_depth
     else:
