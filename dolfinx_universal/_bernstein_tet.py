@@ -10,6 +10,7 @@ Geuzaine 2013). The child coefficients are blossoms of the parent's at the child
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import lru_cache
 from math import factorial
 
@@ -215,23 +216,29 @@ def _cofactor(j: Float) -> Float:
     return a
 
 
+def _blocked(nodes: Float, d: Float, p: int, entries: Callable[[Float, int], Float]) -> Float:
+    """``det J``, ``(m, p)``, in blocks of :data:`_CHUNK` cells: the product of each block's
+    coordinates ``(3 c, ndofs)`` with ``d`` is turned into the Jacobian entries ``j[i, k]``
+    (each ``(c, p)``) by ``entries(product, c)``, then expanded by cofactors."""
+    m, n, _ = nodes.shape
+    out = np.empty((m, p))
+    chunk = _CHUNK if p <= 35 else _CHUNK // 2
+    for s in range(0, m, chunk):
+        block = nodes[s : s + chunk]
+        c = len(block)
+        out[s : s + c] = _cofactor(entries(block.transpose(2, 0, 1).reshape(3 * c, n) @ d, c))
+    return out
+
+
 def determinant(nodes: Float, dphi: Float) -> Float:
     """``det J``, ``(m, p)``, from nodes ``(m, ndofs, 3)`` and derivatives ``(3, p, ndofs)``.
 
     Blocks of :data:`_CHUNK` cells: one matrix product gives the Jacobian entries at the
     ``p`` points, the cofactor expansion runs on its rows of ``p`` contiguous values.
     """
-    m, n, _ = nodes.shape
-    p = dphi.shape[1]
+    n, p = nodes.shape[1], dphi.shape[1]
     d = np.ascontiguousarray(dphi.transpose(2, 0, 1).reshape(n, 3 * p))  # (ndofs, (k, p))
-    out = np.empty((m, p))
-    chunk = _CHUNK if p <= 35 else _CHUNK // 2
-    for s in range(0, m, chunk):
-        block = nodes[s : s + chunk]
-        c = len(block)
-        g = (block.transpose(2, 0, 1).reshape(3 * c, n) @ d).reshape(3, c, 3, p)
-        out[s : s + c] = _cofactor(g.transpose(0, 2, 1, 3))
-    return out
+    return _blocked(nodes, d, p, lambda g, c: g.reshape(3, c, 3, p).transpose(0, 2, 1, 3))
 
 
 def lattice_determinant(nodes: Float, degree: int) -> Float:
@@ -240,17 +247,13 @@ def lattice_determinant(nodes: Float, degree: int) -> Float:
     entries by the two products of :func:`derivative_factors` (the same values to
     rounding, in about 70 % of the time at q = 3 on curved tetrahedra)."""
     d, b = derivative_factors(degree)
-    m, n, _ = nodes.shape
     nb, p = b.shape
-    out = np.empty((m, p))
-    chunk = _CHUNK if p <= 35 else _CHUNK // 2
-    for s in range(0, m, chunk):
-        block = nodes[s : s + chunk]
-        c = len(block)
-        g = (block.transpose(2, 0, 1).reshape(3 * c, n) @ d).reshape(3, c, 3, nb)
-        j = (g.transpose(0, 2, 1, 3).reshape(9 * c, nb) @ b).reshape(3, 3, c, p)
-        out[s : s + c] = _cofactor(j)
-    return out
+
+    def entries(g: Float, c: int) -> Float:
+        g = g.reshape(3, c, 3, nb).transpose(0, 2, 1, 3).reshape(9 * c, nb)
+        return (g @ b).reshape(3, 3, c, p)
+
+    return _blocked(nodes, d, p, entries)
 
 
 def affine_determinant(nodes: Float) -> Float:
