@@ -25,7 +25,6 @@ __all__ = [
     "control_points",
     "derivative_factors",
     "determinant",
-    "lattice_derivatives",
     "lattice_determinant",
     "subdivision",
 ]
@@ -164,25 +163,16 @@ def subdivision(order: int) -> Float:
 
 
 @lru_cache(maxsize=16)
-def lattice_derivatives(degree: int) -> Float:
-    """Reference derivatives of the degree-q Lagrange basis at the degree-3(q-1) control
-    points, ``(3, nb, ndofs)``."""
-    pts = control_points(3 * (degree - 1))
-    return readonly(
-        np.ascontiguousarray(lagrange_element("tetrahedron", degree).tabulate(1, pts)[1:, :, :, 0])
-    )
-
-
-@lru_cache(maxsize=16)
 def derivative_factors(degree: int) -> tuple[Float, Float]:
-    """:func:`lattice_derivatives` as a product of two smaller matrices.
+    """The reference derivatives of the degree-q Lagrange basis at the degree-3(q-1) control
+    points, as a product of two smaller matrices.
 
-    The derivatives of the degree-q Lagrange basis are polynomials of degree ``q - 1``:
-    their Bernstein coefficients ``D``, ``(ndofs, 3 nb)`` (columns: direction, then
-    coefficient), and the degree-``(q - 1)`` Bernstein basis at the ``p`` degree-3(q-1)
-    control points ``B``, ``(nb, p)``, give the derivatives at those points as ``D`` then
-    ``B``: ``nb`` (4, 10, 20 at q = 2, 3, 4) is much smaller than ``p`` (20, 84, 220), so
-    two products cost about 60 % of one at q = 3 and 55 % at q = 4.
+    The derivatives are polynomials of degree ``q - 1``: their Bernstein coefficients
+    ``D``, ``(ndofs, 3 nb)`` (columns: direction, then coefficient), and the degree-
+    ``(q - 1)`` Bernstein basis at the ``p`` control points ``B``, ``(nb, p)``, give the
+    derivatives there as ``D`` then ``B``: ``nb`` (4, 10, 20 at q = 2, 3, 4) is much
+    smaller than ``p`` (20, 84, 220), so two products cost about 60 % of one at q = 3 and
+    55 % at q = 4.
     """
     low = degree - 1
     pts = control_points(low)
@@ -243,8 +233,8 @@ def determinant(nodes: Float, dphi: Float) -> Float:
 
 def lattice_determinant(nodes: Float, degree: int) -> Float:
     """``det J`` at the degree-3(q-1) control points, ``(m, p)``, from nodes
-    ``(m, ndofs, 3)``: :func:`determinant` with :func:`lattice_derivatives`, the Jacobian
-    entries by the two products of :func:`derivative_factors` (the same values to
+    ``(m, ndofs, 3)``: :func:`determinant` with the derivatives at those points, the
+    Jacobian entries by the two products of :func:`derivative_factors` (the same values to
     rounding, in about 70 % of the time at q = 3 on curved tetrahedra)."""
     d, b = derivative_factors(degree)
     nb, p = b.shape

@@ -242,7 +242,7 @@ def test_tet_bernstein_coefficients_reproduce_det(degree):
     rng = np.random.default_rng(degree)
     nodes = random_tets(degree, 30, rng, 0.05)
     order = 3 * (degree - 1)
-    det = _tet.determinant(nodes, _tet.lattice_derivatives(degree))
+    det = _tet.lattice_determinant(nodes, degree)
     c = _to_bernstein(3, order)(det)
     assert c.shape == (30, (order + 1) * (order + 2) * (order + 3) // 6)
     pts = random_tet_points(rng, 100)
@@ -265,7 +265,8 @@ def test_tet_lattice_determinant_is_the_one_product_determinant(degree):
     wrong factor or column order gives O(1))."""
     rng = np.random.default_rng(10 + degree)
     d, b = _tet.derivative_factors(degree)
-    dphi = _tet.lattice_derivatives(degree)  # (3, p, n)
+    pts = _tet.control_points(3 * (degree - 1))
+    dphi = lagrange_element("tetrahedron", degree).tabulate(1, pts)[1:, :, :, 0]  # (3, p, n)
     n = dphi.shape[2]
     assert np.allclose(
         (d.reshape(n, 3, -1) @ b).transpose(1, 2, 0), dphi, rtol=0, atol=1e-12 * np.abs(dphi).max()
