@@ -92,23 +92,27 @@ def cases(comm: MPI.Comm) -> Iterator[tuple[str, str, dict, Callable[[], object]
     yield "moving_graded", "moving", {"local_size": True}, moving_graded
 
 
+def affine_mesh(msh: dmesh.Mesh, degree: int) -> dmesh.Mesh:
+    """The degree-q straight (affine) geometry of a degree-1 triangle mesh, as DOLFINx
+    numbers it."""
+    ce = fem.coordinate_element(dmesh.CellType.triangle, degree, basix.LagrangeVariant.gll_warped)
+    return fem.interpolate_geometry(msh, ce)
+
+
 def affine_geometry(msh: dmesh.Mesh, degree: int) -> np.ndarray:
     """Nodes ``(n, 2)`` of the degree-q straight (affine) geometry of a degree-1 mesh."""
-    ce = fem.coordinate_element(dmesh.CellType.triangle, degree, basix.LagrangeVariant.gll_warped)
-    return fem.interpolate_geometry(msh, ce).geometry.x[:, :2].copy()
+    return affine_mesh(msh, degree).geometry.x[:, :2].copy()
 
 
-def in_affine_numbering(curved: dmesh.Mesh, msh: dmesh.Mesh, degree: int) -> np.ndarray:
-    """The nodes ``(n, 2)`` of a degree-q mesh on the topology of ``msh``, numbered as
-    :func:`affine_geometry` numbers them: cell by cell, the same reference node.
+def in_affine_numbering(curved: dmesh.Mesh, affine: dmesh.Mesh) -> np.ndarray:
+    """The nodes ``(n, 2)`` of a degree-q mesh numbered as the :func:`affine_mesh` of the
+    same topology and degree numbers them: cell by cell, the same reference node.
 
     A geometry is defined by each cell's nodes, not by the numbering of the nodes, which
     ``curved_mesh`` chooses itself (``_lagrange``) and ``interpolate_geometry`` by a graph
     reordering."""
-    ce = fem.coordinate_element(dmesh.CellType.triangle, degree, basix.LagrangeVariant.gll_warped)
-    reference = fem.interpolate_geometry(msh, ce).geometry
-    x = np.empty((len(reference.x), 2))
-    x[reference.dofmaps[0]] = curved.geometry.x[curved.geometry.dofmaps[0], :2]
+    x = np.empty((len(affine.geometry.x), 2))
+    x[affine.geometry.dofmaps[0]] = curved.geometry.x[curved.geometry.dofmaps[0], :2]
     return x
 
 
@@ -145,16 +149,16 @@ def conform_outputs(background: dmesh.Mesh, boundary: du.Boundary, options: dict
         "cm_tag_indices": cm.facet_tags.indices,
         "cm_tag_values": cm.facet_tags.values,
     }
+    affine = {q: affine_mesh(cm.mesh, q) for q in (2, 3)}  # each built once
     for q in (2, 3):
         cv = du.curved_mesh(cm, q)
-        for key, value in curved_nodes(
-            in_affine_numbering(cv.mesh, cm.mesh, q), affine_geometry(cm.mesh, q)
-        ).items():
+        x = in_affine_numbering(cv.mesh, affine[q])
+        for key, value in curved_nodes(x, affine[q].geometry.x[:, :2]).items():
             out[f"curved{q}_{key}"] = value
         out[f"curved{q}_ratio"] = np.array(cv.min_jacobian_ratio)
     cv = du.curved_mesh(cm, 2, "I~")
-    x = in_affine_numbering(cv.mesh, cm.mesh, 2)
-    for key, value in curved_nodes(x, affine_geometry(cm.mesh, 2)).items():
+    x = in_affine_numbering(cv.mesh, affine[2])
+    for key, value in curved_nodes(x, affine[2].geometry.x[:, :2]).items():
         out[f"curved2t_{key}"] = value
     return out
 
