@@ -68,7 +68,7 @@ import numpy.typing as npt
 from dolfinx import mesh as dmesh
 from scipy.spatial import cKDTree
 
-from ._geometry import Float, Int
+from ._geometry import Float, Int, kd_query
 from .background import create_mesh, layout_partitioner
 
 __all__ = [
@@ -246,7 +246,7 @@ class BandSizeField:
         for s, margin, normals, tree in self._groups():
             w_in, w_out = self.band * s + margin, self.outer_band * s + margin
             reach = max(w_in, w_out) + (self.h_max - s) / g
-            d, i = tree.query(x, distance_upper_bound=reach, workers=-1)
+            d, i = kd_query(tree, x, distance_upper_bound=reach)
             w = np.full(len(x), w_in)
             if self.normals is not None:  # the side of the nearest source's normal: outer
                 hit = np.flatnonzero(i < tree.n)

@@ -14,7 +14,18 @@ import numpy.typing as npt
 from scipy import ndimage
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
-from ._geometry import Bool, Float, Int, as_box, as_points, cross2, norm2, positive, readonly
+from ._geometry import (
+    Bool,
+    Float,
+    Int,
+    as_box,
+    as_points,
+    cross2,
+    kd_query,
+    norm2,
+    positive,
+    readonly,
+)
 from .boundaries import Boundary
 from .validation import collective_call, raise_collective
 
@@ -51,7 +62,6 @@ MAX_SAMPLES = 2**18
 
 _INITIAL_CELLS = 1024  # first spacing of feature_size: bounding-box diagonal / 1024
 _NOISE = 1e-12  # |(q - p).n| below this fraction of |q - p|: q is on the tangent line of p
-_WORKERS = -1  # threads of the k-d tree queries
 _JITTER = 1e-7  # jitter of the samples for the triangulation, relative to their spacing
 _WINDOW = 4  # neighbours along the curve (each way) always tested by medial_radius
 _GRID_CELLS = 256  # cells of the distance lower-bound grids of a size field (longer side)
@@ -541,7 +551,7 @@ class _Bins:
                 continue
             hc = h[cand]
             bound = (float(hc.max()) - s_b) / g + e
-            d = tree.query(x[cand], distance_upper_bound=bound, workers=_WORKERS)[0]
+            d = kd_query(tree, x[cand], distance_upper_bound=bound)[0]
             h[cand] = np.minimum(hc, s_b + g * np.maximum(d - e, 0.0))
 
 
@@ -774,7 +784,7 @@ class _Threshold:
         assert self.points is not None
         if self._tree is None:
             self._tree = cKDTree(self.points)
-        return self._tree.query(x[:, : self.points.shape[1]], workers=_WORKERS)[0]
+        return kd_query(self._tree, x[:, : self.points.shape[1]])[0]
 
     def __call__(self, x: npt.ArrayLike) -> Float:
         return self.ramp(self.distance(_user_points(x)))
@@ -1115,7 +1125,7 @@ class _GradedSources:
             if not len(more):
                 continue
             bound = (float(h[more].max()) - s_b) / self.gradation
-            d = tree.query(p[more, : pts.shape[1]], distance_upper_bound=bound, workers=_WORKERS)[0]
+            d = kd_query(tree, p[more, : pts.shape[1]], distance_upper_bound=bound)[0]
             h[more] = np.minimum(h[more], s_b + self.gradation * d)
         return h
 

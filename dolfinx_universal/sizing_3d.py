@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ._geometry import Float, Int, positive, readonly
+from ._geometry import Float, Int, kd_query, positive, readonly
 from .boundaries import Boundary, Domain, RigidMotion
 
 __all__ = [
@@ -56,7 +56,6 @@ MAX_ITERATIONS = 60
 _EXCLUDE = 3.0  # first step: samples within this many spacings of p do not shrink the ball
 _FIRST_NEIGHBOURS = 8  # neighbours of the first query, to skip those near p
 _RTOL = 1e-12  # a ball is empty when q is within _RTOL (r + r_max) of its sphere
-_WORKERS = -1  # threads of the k-d tree queries
 _CHUNK = 2048  # centres per closest-point call
 
 
@@ -194,7 +193,7 @@ def sample_nearest(points: Float, exclude: float = 0.0, tree: cKDTree | None = N
 
     def nearest(c: Float, owner: Int, first: bool) -> Float:
         k = k_first if first else min(2, len(x))
-        idx = tree.query(c, k=k, workers=_WORKERS)[1].reshape(len(c), k)
+        idx = kd_query(tree, c, k=k)[1].reshape(len(c), k)
         other = idx != owner[:, None]
         choice = other.argmax(axis=1)
         if first and exclude > 0.0:
@@ -320,7 +319,7 @@ def surface_feature_size(
     h, tree = float(spacing), None
     if len(points) > 1:
         tree = cKDTree(points)
-        h = float(np.median(tree.query(points, k=2, workers=_WORKERS)[0][:, 1]))
+        h = float(np.median(kd_query(tree, points, k=2)[0][:, 1]))
     samples = sample_nearest(points, _EXCLUDE * h, tree)
     if nearest == "auto":
         nearest = "samples" if _searched(boundary) else "surface"

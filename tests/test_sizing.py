@@ -564,3 +564,43 @@ def test_size_field_speed():
     assert np.all(H[:2000] <= E * (1 + 1e-12)) and np.all(H[:2000] >= E / 1.1)  # (ulps)
     lines.append(f"1e5 sources of size 0.01 on a unit circle, 1e5 points inside: {t1 - t0:.3f} s")
     print("\nsize_field: " + "; ".join(lines))
+
+
+def test_small_tree_queries_start_no_thread(monkeypatch):
+    """``kd_query`` answers as ``cKDTree.query`` does, and starts threads only for large
+    queries in a one-process run: scipy starts Python threads for every threaded query, and
+    the size field of a ``mesh_domain`` call makes dozens of small ones (before, their
+    threads took more than half of the call)."""
+    import threading
+
+    from mpi4py import MPI
+
+    from scipy.spatial import cKDTree
+
+    from dolfinx_universal import _geometry
+
+    started = []
+    start = threading.Thread.start
+
+    def counted(self):
+        started.append(self)
+        return start(self)
+
+    monkeypatch.setattr(threading.Thread, "start", counted)
+    rng = np.random.default_rng(3)
+    tree = cKDTree(rng.random((500, 2)))
+    x = rng.random((2000, 2))
+    expected = tree.query(x, distance_upper_bound=0.1)
+    got = _geometry.kd_query(tree, x, distance_upper_bound=0.1)
+    assert not started
+    assert all(np.array_equal(a, b) for a, b in zip(got, expected, strict=True))
+    d = Domain(Circle((0, 0), 2), [Circle((0.5, 0), 0.3), Ellipse((-1, 0), 0.5, 0.05, 0.3)])
+    samples, feature = feature_size(d)
+    field = SizeField(samples.points, target_sizes(feature, 0.1, 2), 0.1)
+    field(rng.uniform(-2.1, 2.1, (5000, 2)))
+    assert not started
+    monkeypatch.setattr(_geometry, "THREADED_QUERY", 1000)
+    got = _geometry.kd_query(tree, x, distance_upper_bound=0.1)
+    assert all(np.array_equal(a, b) for a, b in zip(got, expected, strict=True))
+    if MPI.COMM_WORLD.size > 1:  # the ranks occupy the cores
+        assert not started
