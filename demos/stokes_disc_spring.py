@@ -90,11 +90,11 @@
 # the reaction force), whereas $F_{\text{surf}}$ takes traces of $\nabla u_h$ and $p_h$ on
 # the boundary, $O(h^2)$. The convergence study below confirms it: on nested backgrounds
 # with $h_{\text{fine}} = 0.018, 0.009, 0.0045$ near the disc, successive differences are
-# $2.5 \cdot 10^{-4}$, $6 \cdot 10^{-5}$ for $F_{\text{surf}}$ (order 2) and
-# $1.6 \cdot 10^{-5}$, $9 \cdot 10^{-7}$ for $F_{\text{var}}$ (order 4), on a force of
-# $0.15$: on the background of the run $F_{\text{var}}$ is about 15 times more accurate.
+# $2.0 \cdot 10^{-4}$, $3.7 \cdot 10^{-5}$ for $F_{\text{surf}}$ (observed order 2.5) and
+# $1.1 \cdot 10^{-5}$, $6 \cdot 10^{-7}$ for $F_{\text{var}}$ (order 4.2), on a force of
+# $0.15$: on the background of the run $F_{\text{var}}$ is about 19 times more accurate.
 # $F_{\text{surf}}$ also jumps from step to step as the conforming triangles at $\Gamma_h$
-# change (its median second difference along the run is about 20 times that of
+# change (its median second difference along the run is about 14 times that of
 # $F_{\text{var}}$), and the dynamics integrate the force twice. The dynamics use
 # $F^n = F_{\text{var}}$.
 #
