@@ -146,11 +146,12 @@ def kd_query(tree: Any, x: Float, **kwargs: Any) -> tuple[Any, Any]:
     cores (scipy's ``workers=-1``) for a query of at least :data:`THREADED_QUERY` points in a
     run of one MPI process.
 
-    scipy starts Python threads for every threaded query: about a millisecond of start and
-    join that a small query does not repay (``mesh_domain`` of planar domains spent more than
-    half its time there, 0.32-0.40 s per domain against 0.13-0.14 s on one thread), and
-    under MPI the ranks already occupy the cores, so threads only compete with them. Each
-    point's answer is computed alone, so the results do not depend on the choice.
+    scipy starts Python threads for every threaded query, which a small query does not repay
+    (0.2 ms per query on an idle machine, more when other work holds the cores: with threads
+    for every query, planar ``mesh_domain`` on 24 random domains took 1.4x as long on an idle
+    2-core machine, 2.5x with another job on the second core), and under MPI the ranks
+    already occupy the cores, so threads only compete with them. Each point's answer is
+    computed alone, so the results do not depend on the choice.
     """
     from mpi4py import MPI
 
