@@ -176,7 +176,7 @@ class Surface(Boundary):
         """
         x = _points(x)
         d = _distances(distance, len(x))
-        mask = self._lower_bound(x) <= d
+        mask = self._lower_bound_within(x, float(d.max()) if len(d) else 0.0) <= d
         test = np.flatnonzero(mask)
         if test.size:
             test = test[self._upper_bound(x[test]) > d[test]]
@@ -188,6 +188,11 @@ class Surface(Boundary):
     @abc.abstractmethod
     def _lower_bound(self, x: Float) -> Float:
         """Cheap lower bound ``(n,)`` of the distance from points ``x (n, 3)`` to Gamma."""
+
+    def _lower_bound_within(self, x: Float, cap: float) -> Float:
+        """:meth:`_lower_bound`, where it is at most ``cap``; any value above ``cap``
+        elsewhere (what :meth:`near` needs, and may be cheaper)."""
+        return self._lower_bound(x)
 
     def _upper_bound(self, x: Float) -> Float:
         """Cheap upper bound ``(n,)`` of the distance to Gamma (default: none, ``inf``)."""
@@ -957,6 +962,16 @@ class ImplicitSurface(Surface):
     def _lower_bound(self, x: Float) -> Float:
         d = self._seeds[1].query(x)[0] if len(x) else np.zeros(0)
         return np.maximum(d - self._seeds[4], 0.0) * (1 - 1e-9)
+
+    def _lower_bound_within(self, x: Float, cap: float) -> Float:
+        # The nearest seed only within (cap + r)(1 + 1e-6) (r: the covering radius); beyond,
+        # the bound (d - r)(1 - 1e-9) exceeds cap and the query returns inf. A bounded query
+        # stops early for the many far points (the background's vertices away from Gamma).
+        if not len(x):
+            return np.zeros(0)
+        r = self._seeds[4]
+        d = self._seeds[1].query(x, distance_upper_bound=(cap + r) * (1 + 1e-6))[0]
+        return np.maximum(d - r, 0.0) * (1 - 1e-9)
 
     def _upper_bound(self, x: Float) -> Float:
         d = self._seeds[1].query(x)[0] if len(x) else np.zeros(0)

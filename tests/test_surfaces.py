@@ -185,6 +185,10 @@ def check_near(S: Surface, x: Float) -> None:
     assert S.near(x, per)[d <= per].all()
     lb = S._lower_bound(x)
     assert (lb <= d * (1 + 1e-12) + 1e-15).all()
+    for cap in (0.0, 0.05, 0.3):  # the bound near() uses: lb where lb <= cap, above cap else
+        lw = S._lower_bound_within(x, cap)
+        low = lb <= cap
+        assert np.array_equal(lw[low], lb[low]) and (lw[~low] > cap).all()
 
 
 RNG = np.random.default_rng(20240611)
