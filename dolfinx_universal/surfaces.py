@@ -960,8 +960,7 @@ class ImplicitSurface(Surface):
         return _unit(g)
 
     def _lower_bound(self, x: Float) -> Float:
-        d = self._seeds[1].query(x)[0] if len(x) else np.zeros(0)
-        return np.maximum(d - self._seeds[4], 0.0) * (1 - 1e-9)
+        return self._lower_bound_within(x, np.inf)  # an unbounded query of the seeds
 
     def _lower_bound_within(self, x: Float, cap: float) -> Float:
         # The nearest seed only within (cap + r)(1 + 1e-6) (r: the covering radius); beyond,
