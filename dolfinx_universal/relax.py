@@ -76,6 +76,7 @@ MIN_STEP = 1e-2
 """A vertex stops once its step falls below this, in units of ``h``: its compass search has
 converged (a move of ``h / 100`` changes an angle by at most about half a degree)."""
 SWEEPS = 12
+"""Default number of sweeps over all colours."""
 GAMMA_EDGE_MAX = 1.0
 """Longest edge of Gamma_h a slide may make, in units of the larger ``h`` of its two
 vertices (edges longer after ``M_h`` may keep, not exceed, their length): the geometric
@@ -84,8 +85,6 @@ GAMMA_SWEEPS = 6
 """Sweeps in which the vertices on Gamma slide (each costs a closest-point projection, the
 dearest step of a sweep; on the circle study sliding for all 12 sweeps gains 0-0.3 degrees
 of minimum angle, at 10-20 % more cost)."""
-
-"""Default number of sweeps over all colours."""
 ACTIVE_BELOW = 1.05
 """A vertex moves in a sweep only if a triangle around it has a :func:`shape_quality`
 below this (1 at the targets, 1.3 for an equilateral triangle): vertices that meet the
