@@ -242,7 +242,7 @@ def _segment_min(v: Float, starts: Int) -> Float:
 def relax_tetrahedra(
     comm: MPI.Comm,
     imv: IndexMap,
-    closest_normal: Callable[[Float], tuple[Float, Float]],
+    onto_gamma: Callable[[Float], tuple[Float, Float]],
     x0: Float,
     xp: Float,
     y: Float,
@@ -271,7 +271,7 @@ def relax_tetrahedra(
     ev, cell_idx = stars.ev, stars.cell_idx
     bounds = np.searchsorted(colour[ev], np.arange(ncol + 1))
     groups = [np.flatnonzero(colour == k) for k in range(ncol)]
-    search = _Directional(comm, sub, closest_normal, stars, normal, on_gamma, h, frame)
+    search = _Directional(comm, sub, onto_gamma, stars, normal, on_gamma, h, frame)
     todo = np.ones(m, dtype=bool)
     num_moves, done = 0, 0
     for sweep in range(sweeps):
@@ -398,14 +398,14 @@ class _Directional:
         self,
         comm: MPI.Comm,
         sub: _Sub,
-        closest_normal: Callable[[Float], tuple[Float, Float]],
+        onto_gamma: Callable[[Float], tuple[Float, Float]],
         stars: _TetStars,
         normal: Float,
         on_gamma: Bool,
         h: Float,
         frame: RelaxFrame | None = None,
     ) -> None:
-        self.comm, self.sub, self.closest_normal, self.stars = comm, sub, closest_normal, stars
+        self.comm, self.sub, self.onto_gamma, self.stars = comm, sub, onto_gamma, stars
         self.frame = frame
         verts = sub.vertices
         self.gamma_v = on_gamma[verts]
@@ -546,7 +546,7 @@ class _Directional:
             tg = np.concatenate([tg, np.repeat(self.step[G, None], SLIDES, axis=1)], axis=1)
         ns = pc.shape[1]
         pp, pn = collective_call(
-            self.comm, "closest-point projection", self.closest_normal, pc.reshape(-1, 3)
+            self.comm, "projection onto Gamma", self.onto_gamma, pc.reshape(-1, 3)
         )
         pp, pn = pp.reshape(len(G), ns, 3), pn.reshape(len(G), ns, 3)
         gpos = np.full(len(S), -1, dtype=np.int64)

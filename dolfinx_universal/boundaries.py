@@ -750,10 +750,23 @@ class Boundary(abc.ABC):
 
     def closest_normal(self, x: Float) -> tuple[Float, Float]:
         """Closest points ``(n, gdim)`` of points ``x (n, gdim)`` and the unit outward normals
-        there ``(n, gdim)``, in one call: the projection the conforming step and the
-        relaxation use (subclasses compute both at once where that is cheaper)."""
+        there ``(n, gdim)``, in one call: the projection the conforming step uses
+        (subclasses compute both at once where that is cheaper)."""
         y = self.closest_point(x)
         return y, self.normal(y)
+
+    def onto_gamma(self, x: Float) -> tuple[Float, Float]:
+        """Points of Gamma ``(n, gdim)`` near points ``x (n, gdim)`` that lie close to it,
+        and the unit outward normals there ``(n, gdim)``.
+
+        The vertex relaxation moves its sliding candidates (steps along the tangent of Gamma
+        from a vertex on Gamma, far closer to Gamma than its feature size) onto Gamma with
+        it: any nearby point of Gamma will do there, not only the closest one. By default
+        the closest points (:meth:`closest_normal`); a subclass may return others where
+        that is much cheaper (:class:`~dolfinx_universal.surfaces.ImplicitSurface`: along
+        the gradient line of its level-set function).
+        """
+        return self.closest_normal(x)
 
     def _sign_closest_normal(self, x: Float) -> tuple[Float, Float, Float]:
         """:meth:`project_normal` as :meth:`Boundary.project` computes ``phi`` (the sign and
@@ -1737,6 +1750,12 @@ class RigidMotion(Boundary):
         y, n = self.base.closest_normal(self._to_base(x))
         return self._from_base(y), self._turn(n)
 
+    def onto_gamma(self, x: Float) -> tuple[Float, Float]:
+        if not _native(self, RigidMotion, "closest_point", "normal", "closest_normal"):
+            return Boundary.onto_gamma(self, x)
+        y, n = self.base.onto_gamma(self._to_base(x))
+        return self._from_base(y), self._turn(n)
+
     def normal(self, y: npt.ArrayLike) -> Float:
         return self._turn(self.base.normal(self._to_base(y)))
 
@@ -1865,12 +1884,16 @@ class Domain(Boundary):
             s[m[b.sign(x[m]) < 0]] = 1.0
         return s
 
-    def _closest(self, x: Float, normals: bool = False) -> tuple[Int, Float, Float, Float | None]:
+    def _closest(
+        self, x: Float, normals: bool = False, onto: bool = False
+    ) -> tuple[Int, Float, Float, Float | None]:
         """Closest component index ``(n,)``, closest point ``(n, gdim)``, distance ``(n,)``
         and, with ``normals``, the outward normals of Omega there ``(n, gdim)`` (else None).
 
         Each point is projected onto the component with the smallest distance lower bound,
         then onto every other component whose lower bound beats the best distance so far.
+        With ``onto`` (and ``normals``), the components' :meth:`onto_gamma` instead of their
+        closest points: a point of the nearest component, near ``x``.
         """
         comps = self.components
         if not len(x):
@@ -1879,7 +1902,7 @@ class Domain(Boundary):
         if len(comps) == 1:  # no lower bounds needed
             b, body = comps[0]
             if normals:
-                y, n = b.closest_normal(x)
+                y, n = b.onto_gamma(x) if onto else b.closest_normal(x)
                 return np.zeros(len(x), dtype=np.intp), y, _normd(x - y), -n if body else n
             y = b.closest_point(x)
             return np.zeros(len(x), dtype=np.intp), y, _normd(x - y), None
@@ -1892,7 +1915,7 @@ class Domain(Boundary):
                 m = np.flatnonzero((first == k) if rnd == 0 else (lb[k] < d) & (first != k))
                 if m.size:
                     if normals:
-                        yk, nk = b.closest_normal(x[m])
+                        yk, nk = b.onto_gamma(x[m]) if onto else b.closest_normal(x[m])
                     else:
                         yk = b.closest_point(x[m])
                     dk = _normd(x[m] - yk)
@@ -1930,6 +1953,12 @@ class Domain(Boundary):
 
     def closest_normal(self, x: Float) -> tuple[Float, Float]:
         _, y, _, n = self._closest(x, normals=True)
+        return y, n  # type: ignore[return-value]
+
+    def onto_gamma(self, x: Float) -> tuple[Float, Float]:
+        if not _native(self, Domain, "closest_point", "normal", "closest_normal"):
+            return Boundary.onto_gamma(self, x)
+        _, y, _, n = self._closest(x, normals=True, onto=True)
         return y, n  # type: ignore[return-value]
 
     def normal(self, y: npt.ArrayLike) -> Float:

@@ -510,7 +510,7 @@ class UniversalMesh:
             t_relax = time.perf_counter()
             movable = movable_vertices(imv, s, band, pe.on_gamma, pe.in_kept, outer)
             y, xp, moved = relax_vertices(
-                comm, imv, boundary.closest_normal, x, xp, y, pe.near_kept_cv, movable,
+                comm, imv, boundary.onto_gamma, x, xp, y, pe.near_kept_cv, movable,
                 pe.on_gamma, normal, phi, self.h, frame=self._relax_frame(boundary),
             )[:3]  # fmt: skip
             timings["relax"] = time.perf_counter() - t_relax

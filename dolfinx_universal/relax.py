@@ -3,24 +3,26 @@
 After ``M_h`` the triangles at Gamma are the worst of a universal mesh (Rangarajan & Lew
 2014: minimum angles of about 21-23 degrees on equilateral backgrounds). Connectivity is
 fixed, so quality can only be gained by moving vertices: each inside vertex of the band
-moves freely, each vertex on Gamma slides along Gamma (candidates are projected by the
-closest-point map), to maximise the worst :func:`shape_quality` (smallest angle and
-radius ratio) of the kept triangles around it. This is the max-min (nonsmooth) vertex
-optimisation of optimisation-based smoothing (Freitag & Ollivier-Gooch 1997; Amenta, Bern
-& Eppstein 1999), solved here by a compass (pattern) search: a few directions and step
-lengths per vertex and sweep, the step growing after a success and shrinking where no
-candidate helps. A move is accepted only if it raises the vertex's worst incident quality
-(by more than a tolerance, :data:`TIE`) and keeps every incident kept triangle positively
-oriented, so validity and the global minimum of the quality never get worse. Among
-candidates that tie up to :data:`TIE` the first in a fixed order wins, so that no decision
-hangs on rounding: the same domain given through another parametrisation (a threefold
-propeller turned by 120 degrees) gives the same mesh up to rounding.
+moves freely, each vertex on Gamma slides along Gamma (candidates are moved onto Gamma by
+:meth:`~dolfinx_universal.boundaries.Boundary.onto_gamma`: the closest-point map, or a
+cheaper map onto Gamma where a boundary has one), to maximise the worst
+:func:`shape_quality` (smallest angle and radius ratio) of the kept triangles around it.
+This is the max-min (nonsmooth) vertex optimisation of optimisation-based smoothing
+(Freitag & Ollivier-Gooch 1997; Amenta, Bern & Eppstein 1999), solved here by a compass
+(pattern) search: a few directions and step lengths per vertex and sweep, the step growing
+after a success and shrinking where no candidate helps. A move is accepted only if it
+raises the vertex's worst incident quality (by more than a tolerance, :data:`TIE`) and
+keeps every incident kept triangle positively oriented, so validity and the global minimum
+of the quality never get worse. Among candidates that tie up to :data:`TIE` the first in a
+fixed order wins, so that no decision hangs on rounding: the same domain given through
+another parametrisation (a threefold propeller turned by 120 degrees) gives the same mesh
+up to rounding.
 
 The cost is kept down by working only where it pays: a vertex stops once its triangles
 meet the targets with a margin (:data:`ACTIVE_BELOW`), or come within 10 % of its star's
 in the background (:data:`ACTIVE_RATIO`), or its step has converged
 (:data:`MIN_STEP`), the vertices on Gamma slide only in the first :data:`GAMMA_SWEEPS`
-sweeps (each costs a closest-point projection), star qualities are recomputed only where a
+sweeps (each costs a projection onto Gamma), star qualities are recomputed only where a
 corner moved, and colours without a working vertex are skipped.
 
 Vertices that share a kept triangle never move together: the vertices are coloured (Jones &
@@ -82,7 +84,7 @@ GAMMA_EDGE_MAX = 1.0
 vertices (edges longer after ``M_h`` may keep, not exceed, their length): the geometric
 error of a curved edge grows like its length to the power q + 1."""
 GAMMA_SWEEPS = 6
-"""Sweeps in which the vertices on Gamma slide (each costs a closest-point projection, the
+"""Sweeps in which the vertices on Gamma slide (each costs a projection onto Gamma, the
 dearest step of a sweep; on the circle study sliding for all 12 sweeps gains 0-0.3 degrees
 of minimum angle, at 10-20 % more cost)."""
 ACTIVE_BELOW = 1.05
@@ -411,7 +413,7 @@ def vertex_colours(sub: _Sub, cells: Int, priority: Float) -> Int:
 def relax_vertices(
     comm: MPI.Comm,
     imv: IndexMap,
-    closest_normal: Callable[[Float], tuple[Float, Float]],
+    onto_gamma: Callable[[Float], tuple[Float, Float]],
     x0: Float,
     xp: Float,
     y: Float,
@@ -440,9 +442,10 @@ def relax_vertices(
         Communicator of the mesh.
     imv
         Vertex index map.
-    closest_normal
-        Projection onto Gamma with the unit outward normal there,
-        ``(n, 2) -> ((n, 2), (n, 2))`` (for the vertices on Gamma).
+    onto_gamma
+        Points of Gamma near the sliding candidates of the vertices on Gamma, with the unit
+        outward normals there, ``(n, 2) -> ((n, 2), (n, 2))``
+        (:meth:`~dolfinx_universal.boundaries.Boundary.onto_gamma`).
     x0
         Original background positions ``(num_vertices, 2)`` (priorities, moved flags).
     xp
@@ -481,7 +484,7 @@ def relax_vertices(
         from ._dvr import relax_tetrahedra
 
         return relax_tetrahedra(
-            comm, imv, closest_normal, x0, xp, y, cells, movable, on_gamma, normal, phi, h,
+            comm, imv, onto_gamma, x0, xp, y, cells, movable, on_gamma, normal, phi, h,
             sweeps=sweeps, frame=frame,
         )  # fmt: skip
     from ._dvr import vertex_colours_graph  # the colours of vertex_colours, in less time
@@ -503,7 +506,7 @@ def relax_vertices(
     groups = [
         (slice(bounds[k], bounds[k + 1]), np.flatnonzero(colour == k)) for k in range(ncol)
     ]  # each colour's entries, and its vertices (with or without entries on this rank)
-    compass = _Compass(comm, sub, closest_normal, y, normal, on_gamma, h, frame)
+    compass = _Compass(comm, sub, onto_gamma, y, normal, on_gamma, h, frame)
     # A vertex is worked on below the targets and below what its background star offered.
     target = sub.reduce(ACTIVE_RATIO * stars.background_minima(x0, m), "min")
     np.minimum(target, ACTIVE_BELOW, out=target)
@@ -667,14 +670,14 @@ class _Compass:
         self,
         comm: MPI.Comm,
         sub: _Sub,
-        closest_normal: Callable[[Float], tuple[Float, Float]],
+        onto_gamma: Callable[[Float], tuple[Float, Float]],
         y: Float,
         normal: Float,
         on_gamma: Bool,
         h: Float,
         frame: RelaxFrame | None = None,
     ) -> None:
-        self.comm, self.sub, self.closest_normal, self.y = comm, sub, closest_normal, y
+        self.comm, self.sub, self.onto_gamma, self.y = comm, sub, onto_gamma, y
         self.frame = frame
         verts = sub.vertices
         self.gamma = np.flatnonzero(on_gamma[verts])
@@ -723,7 +726,7 @@ class _Compass:
             tangential = self.tangential
             slide = step[g, None, None] * tangential[None] * self.tangent[ga, None, :]
             pg = (y[verts[g]][:, None, :] + slide).reshape(-1, dim)
-            pc, pn = collective_call(self.comm, "closest-point projection", self.closest_normal, pg)
+            pc, pn = collective_call(self.comm, "projection onto Gamma", self.onto_gamma, pg)
             shape = (len(g), len(tangential), dim)
             cand[row[g]] = y[verts[g]][:, None, :]
             cand[row[g], 1 : 1 + len(tangential)] = np.reshape(pc, shape)

@@ -63,6 +63,11 @@ _NEWTON_REACH = 1e-4
 """Longest such step, in grid cells of the seeds: far inside the region where Newton's method
 converges (a fraction of the radius of curvature), far above the steps that the distance
 test cannot resolve."""
+ONTO_REACH = 2.5
+""":meth:`ImplicitSurface.onto_gamma` accepts the zero of ``phi`` on a point's gradient line
+only within this many times Newton's estimate of its offset (two brackets of the search,
+1.25 and 2.5 times the estimate): at a point near Gamma the zero lies within a few percent
+of the estimate; one farther out is left to the closest point."""
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -691,9 +696,10 @@ class ImplicitSurface(Surface):
         return np.where(self._phi(_points(x)) < 0, -1.0, 1.0)
 
     # -- onto Gamma along the gradient line
-    def _to_surface(self, z: Float) -> tuple[Float, Bool]:
+    def _to_surface(self, z: Float, reach: float = np.inf) -> tuple[Float, Bool]:
         """Points moved onto Gamma along the line of ``grad phi`` through them ``(m, 3)``,
-        and the mask of those that found a sign change within ``2 diag(bbox)``."""
+        and the mask of those that found a sign change within ``2 diag(bbox)`` and within
+        ``reach`` times Newton's estimate of the offset (``-phi / |grad phi|``)."""
         m = len(z)
         f0, g0 = self._phi(z), self._g(z)
         gn = _normd(g0)
@@ -711,7 +717,7 @@ class ImplicitSurface(Surface):
             far_end = np.zeros(todo.size)
             k = np.arange(todo.size)
             fac = 1.25
-            while k.size and fac * np.abs(s[k]).min() <= 2 * self._scale:
+            while k.size and fac <= reach and fac * np.abs(s[k]).min() <= 2 * self._scale:
                 tt = s[k] * fac
                 ft = self._phi(z[todo[k]] + tt[:, None] * u[todo[k]])
                 cross = (ft == 0) | (np.sign(ft) != np.sign(f0[todo[k]]))
@@ -950,6 +956,27 @@ class ImplicitSurface(Surface):
             return Boundary.closest_normal(self, x)
         y = self.closest_point(x)
         return y, _unit(self._g(y))
+
+    def onto_gamma(self, x: Float) -> tuple[Float, Float]:
+        """Points of Gamma near points ``x (n, 3)`` close to it and the outward normals
+        there: ``x`` moved along the line of ``grad phi`` through it (one bracketed Newton
+        search, about a tenth of the cost of a closest point; for points a tangent step
+        of 0.05-0.35 h from Gamma the two differ by about 1e-6 h). Points whose zero on
+        that line is not within :data:`ONTO_REACH` times Newton's estimate of the offset,
+        or is not on Gamma to the closest points' tolerance, get their closest points."""
+        if not _native(self, ImplicitSurface, "closest_point", "normal", "closest_normal"):
+            return Boundary.onto_gamma(self, x)
+        x = _points(x)
+        y, ok = self._to_surface(x, reach=ONTO_REACH)
+        g = self._g(y)
+        gn = _normd(g)
+        ok &= (gn > 0) & (np.abs(self._phi(y)) <= 1e-12 * self._scale * gn)
+        n = np.zeros_like(y)
+        n[ok] = g[ok] / gn[ok, None]
+        bad = np.flatnonzero(~ok)
+        if bad.size:
+            y[bad], n[bad] = self.closest_normal(x[bad])
+        return y, n
 
     def normal(self, y: npt.ArrayLike) -> Float:
         y = _points(y)

@@ -265,6 +265,68 @@ ELLIPSOIDS = [
 ]
 
 
+def _slide_candidates(S: Surface, n: int, reach: float) -> tuple[Float, Float]:
+    """Points of ``S`` and tangent steps of up to ``reach`` from them: the relaxation's
+    sliding candidates."""
+    y0 = S.sample(n)
+    t = RNG.standard_normal(y0.shape)
+    n0 = S.normal(y0)
+    t -= (t * n0).sum(axis=1)[:, None] * n0
+    t /= np.linalg.norm(t, axis=1)[:, None]
+    return y0, y0 + reach * RNG.uniform(0.05, 1.0, (len(y0), 1)) * t
+
+
+def check_onto(S: Surface, x: Float, scale: float) -> tuple[Float, Float]:
+    """``onto_gamma``'s contract at points ``x`` near Gamma: points of Gamma (their own
+    closest points to 1e-12 of the size ``scale``: the closest points' tolerance), the
+    unit outward normals there, and within twice the distance of ``x`` from Gamma of it
+    (a point of Gamma across a feature would be farther). Returns the points and normals."""
+    y, n = S.onto_gamma(x)
+    yc, nc = S.closest_normal(y)
+    np.testing.assert_allclose(yc, y, rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(n, nc, rtol=0, atol=1e-9)
+    d = np.linalg.norm(x - S.closest_point(x), axis=1)
+    assert (np.linalg.norm(y - x, axis=1) <= 2 * d + 1e-12 * scale).all()
+    return y, n
+
+
+def test_onto_gamma() -> None:
+    """Closed forms and wrappers of closed forms: the closest points, bitwise. Implicit
+    surfaces: along the gradient line, on Gamma; their own closest points where the zero
+    on that line is out of reach; the same through RigidMotion and Domain."""
+    for S in (Sphere((0.1, 0, 0), 0.8), ELLIPSOIDS[1], Torus((0, 0, 0), 1.0, 0.3)):
+        x = _slide_candidates(S, 300, 0.1)[1]
+        for B in (S, RigidMotion(S, translation=(0.1, 0.2, 0.3)), Domain(None, [S])):
+            y, n = B.onto_gamma(x)
+            y0, n0 = B.closest_normal(x)
+            np.testing.assert_array_equal(y, y0)
+            np.testing.assert_array_equal(n, n0)
+    imp = _torus_implicit(1.0, 0.3)
+    y0, x = _slide_candidates(imp, 2000, 0.1)
+    y, n = check_onto(imp, x, 1.0)
+    # Not the closest points, but close to them: the gradient line and the normal through
+    # x meet Gamma about (distance) * (curvature) * (distance) apart.
+    d = np.linalg.norm(x - imp.closest_point(x), axis=1)
+    assert 0 < np.abs(y - imp.closest_point(x)).max() <= 10 * (d * d).max() / 0.3
+    moved = RigidMotion(imp, translation=(0.5, 0.0, 0.1), rotation=((0, 0, 1), 0.7))
+    xm = moved._from_base(x)
+    ym, nm = check_onto(moved, xm, 1.0)
+    np.testing.assert_allclose(ym, moved._from_base(y), rtol=0, atol=1e-14)
+    inner = Sphere((0, 0, 0), 3.0)  # a container around the torus body
+    dom = Domain(inner, [imp])
+    yd, nd = check_onto(dom, x, 1.0)
+    np.testing.assert_array_equal(yd, y)
+    np.testing.assert_array_equal(nd, -n)  # out of Omega: into the body
+    # The quartic at the origin: Newton's estimate of the offset is 250, beyond the box;
+    # the closest point instead.
+    q = _quartic()
+    c = np.array([[0.1, 0.0, 0.0], [0.0, 0.0, 0.05]])
+    yq, nq = q.onto_gamma(c)
+    y0q, n0q = q.closest_normal(c)
+    np.testing.assert_array_equal(yq, y0q)
+    np.testing.assert_array_equal(nq, n0q)
+
+
 def _ellipsoid_points(E: Ellipsoid) -> Float:
     e, m = E.semi_axes, E._m
     p = RNG.uniform(-1.4, 1.4, (40, 3)) * e
