@@ -181,10 +181,12 @@ class Surface(Boundary):
         """
         x = _points(x)
         d = _distances(distance, len(x))
-        mask = self._lower_bound_within(x, float(d.max()) if len(d) else 0.0) <= d
+        lower, upper = self._bounds_within(x, float(d.max()) if len(d) else 0.0)
+        mask = lower <= d
         test = np.flatnonzero(mask)
         if test.size:
-            test = test[self._upper_bound(x[test]) > d[test]]
+            up = self._upper_bound(x[test]) if upper is None else upper[test]
+            test = test[up > d[test]]
         if test.size:
             y = self.closest_point(x[test])
             mask[test] = _normd(x[test] - y) <= d[test] * (1 + 1e-12)
@@ -202,6 +204,12 @@ class Surface(Boundary):
     def _upper_bound(self, x: Float) -> Float:
         """Cheap upper bound ``(n,)`` of the distance to Gamma (default: none, ``inf``)."""
         return np.full(len(x), np.inf)
+
+    def _bounds_within(self, x: Float, cap: float) -> tuple[Float, Float | None]:
+        """:meth:`_lower_bound_within` and, where one computation gives both, the
+        :meth:`_upper_bound` of every point (else None: :meth:`near` asks for the upper
+        bound of the points the lower bound leaves)."""
+        return self._lower_bound_within(x, cap), None
 
     @abc.abstractmethod
     def area(self) -> float:
@@ -990,14 +998,19 @@ class ImplicitSurface(Surface):
         return self._lower_bound_within(x, np.inf)  # an unbounded query of the seeds
 
     def _lower_bound_within(self, x: Float, cap: float) -> Float:
+        return self._bounds_within(x, cap)[0]
+
+    def _bounds_within(self, x: Float, cap: float) -> tuple[Float, Float | None]:
         # The nearest seed only within (cap + r)(1 + 1e-6) (r: the covering radius); beyond,
-        # the bound (d - r)(1 - 1e-9) exceeds cap and the query returns inf. A bounded query
-        # stops early for the many far points (the background's vertices away from Gamma).
+        # the lower bound (d - r)(1 - 1e-9) exceeds cap and the query returns inf. A bounded
+        # query stops early for the many far points (the background's vertices away from
+        # Gamma). The same distance gives the upper bound (inf beyond: no point there is
+        # tested).
         if not len(x):
-            return np.zeros(0)
+            return np.zeros(0), np.zeros(0)
         r = self._seeds[4]
         d = self._seeds[1].query(x, distance_upper_bound=(cap + r) * (1 + 1e-6))[0]
-        return np.maximum(d - r, 0.0) * (1 - 1e-9)
+        return np.maximum(d - r, 0.0) * (1 - 1e-9), d + 1e-12 * self._scale
 
     def _upper_bound(self, x: Float) -> Float:
         d = self._seeds[1].query(x)[0] if len(x) else np.zeros(0)

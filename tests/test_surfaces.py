@@ -189,6 +189,13 @@ def check_near(S: Surface, x: Float) -> None:
         lw = S._lower_bound_within(x, cap)
         low = lb <= cap
         assert np.array_equal(lw[low], lb[low]) and (lw[~low] > cap).all()
+        # near()'s bounds from one computation: the same lower bound; an upper bound of the
+        # distance, the same as _upper_bound's, wherever the lower bound is within cap
+        lower, upper = S._bounds_within(x, cap)
+        assert np.array_equal(lower, lw)
+        if upper is not None:
+            assert np.array_equal(upper[low], S._upper_bound(x[low]))
+            assert (upper[low] >= d[low] * (1 - 1e-12)).all()
 
 
 RNG = np.random.default_rng(20240611)
