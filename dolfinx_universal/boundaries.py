@@ -64,6 +64,13 @@ def _distances(distance: float | npt.ArrayLike, n: int) -> Float:
     return d
 
 
+ONTO_REACH = 2.5
+"""The level-set boundaries' :meth:`Boundary.onto_gamma` accepts a point of Gamma on a point's
+gradient line only within this many times Newton's estimate of the offset
+(``|f| / |grad f|``): at a point near Gamma the zero lies within a few percent of the
+estimate; one farther out is left to the closest point."""
+
+
 def _native(obj: object, cls: type, *names: str) -> bool:
     """Whether ``obj``'s class keeps ``cls``'s methods ``names`` (no subclass overrides them):
     shortcuts that bypass them are then exact."""
@@ -763,8 +770,9 @@ class Boundary(abc.ABC):
         from a vertex on Gamma, far closer to Gamma than its feature size) onto Gamma with
         it: any nearby point of Gamma will do there, not only the closest one. By default
         the closest points (:meth:`closest_normal`); a subclass may return others where
-        that is much cheaper (:class:`~dolfinx_universal.surfaces.ImplicitSurface`: along
-        the gradient line of its level-set function).
+        that is much cheaper (:class:`ImplicitCurve` and
+        :class:`~dolfinx_universal.surfaces.ImplicitSurface`: along the gradient line of
+        their level-set functions).
         """
         return self.closest_normal(x)
 
@@ -985,13 +993,42 @@ class ImplicitCurve(Boundary):
 
     def _to_curve(self, y: Float, iters: int = 8) -> Float:
         """Points moved onto Gamma by Newton steps along ``grad f``."""
+        y = self._newton_onto(y, iters)
+        if not np.isfinite(y).all():
+            raise ValueError("grad f vanishes on the zero level set: f is not a proper level set")
+        return y
+
+    def _newton_onto(self, y: Float, iters: int) -> Float:
+        """:meth:`_to_curve`'s steps (non-finite where ``grad f`` vanishes on the way)."""
         with np.errstate(divide="ignore", invalid="ignore"):
             for _ in range(iters):
                 g = self._g(y)
                 y = y - (self._s(y) / (g * g).sum(axis=1))[:, None] * g
-        if not np.isfinite(y).all():
-            raise ValueError("grad f vanishes on the zero level set: f is not a proper level set")
         return y
+
+    def onto_gamma(self, x: Float) -> tuple[Float, Float]:
+        """Points of Gamma near points ``x (n, 2)`` close to it and the outward normals
+        there: ``x`` moved by :meth:`_to_curve`'s Newton steps along ``grad f`` (about a
+        third of the cost of a closest point). Points that end farther from ``x`` than
+        :data:`ONTO_REACH` times Newton's first estimate of the offset, or not on Gamma to
+        the closest points' tolerance, get their closest points."""
+        if not _native(self, ImplicitCurve, "closest_point", "normal", "closest_normal"):
+            return Boundary.onto_gamma(self, x)
+        x = as_points(x)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            reach = ONTO_REACH * np.abs(self._s(x)) / norm2(self._g(x)) + 1e-12 * self._scale
+            y = self._newton_onto(x, 8)
+            g = self._g(np.where(np.isfinite(y), y, x))
+            gn = norm2(g)
+            ok = np.isfinite(y).all(axis=1) & (gn > 0) & (norm2(y - x) <= reach)
+            ok &= np.abs(self._s(np.where(ok[:, None], y, x))) <= 1e-12 * self._scale * gn
+        n = np.zeros_like(x)
+        n[ok] = g[ok] / gn[ok, None]
+        y = np.where(ok[:, None], y, x)
+        bad = np.flatnonzero(~ok)
+        if bad.size:
+            y[bad], n[bad] = self.closest_normal(x[bad])
+        return y, n
 
     @cached_property
     def _base_loops(self) -> list[Float]:

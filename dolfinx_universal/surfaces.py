@@ -32,6 +32,7 @@ from scipy.special import elliprg
 from ._geometry import as_points, positive
 from .boundaries import (
     _EPS,
+    ONTO_REACH,
     Bool,
     Boundary,
     Float,
@@ -63,11 +64,6 @@ _NEWTON_REACH = 1e-4
 """Longest such step, in grid cells of the seeds: far inside the region where Newton's method
 converges (a fraction of the radius of curvature), far above the steps that the distance
 test cannot resolve."""
-ONTO_REACH = 2.5
-""":meth:`ImplicitSurface.onto_gamma` accepts the zero of ``phi`` on a point's gradient line
-only within this many times Newton's estimate of its offset (two brackets of the search,
-1.25 and 2.5 times the estimate): at a point near Gamma the zero lies within a few percent
-of the estimate; one farther out is left to the closest point."""
 
 
 # ----------------------------------------------------------------------------- helpers
@@ -968,10 +964,11 @@ class ImplicitSurface(Surface):
     def onto_gamma(self, x: Float) -> tuple[Float, Float]:
         """Points of Gamma near points ``x (n, 3)`` close to it and the outward normals
         there: ``x`` moved along the line of ``grad phi`` through it (one bracketed Newton
-        search, about a tenth of the cost of a closest point; for points a tangent step
-        of 0.05-0.35 h from Gamma the two differ by about 1e-6 h). Points whose zero on
-        that line is not within :data:`ONTO_REACH` times Newton's estimate of the offset,
-        or is not on Gamma to the closest points' tolerance, get their closest points."""
+        search, about a tenth of the cost of a closest point; for points a tangent step of
+        0.05-0.35 h from Gamma the two differ by about 1e-6 h). Points whose zero on that
+        line is not within :data:`~dolfinx_universal.boundaries.ONTO_REACH` times Newton's
+        estimate of the offset, or is not on Gamma to the closest points' tolerance, get
+        their closest points."""
         if not _native(self, ImplicitSurface, "closest_point", "normal", "closest_normal"):
             return Boundary.onto_gamma(self, x)
         x = _points(x)

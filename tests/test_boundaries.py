@@ -558,3 +558,37 @@ def test_projection_starts_change_nothing(name):
         if scale >= 3.0:  # far outside the band of cells
             assert have.mean() < 0.1
     assert (hints.starts(np.array([[np.nan, 0.0], [1e300, 1e300]])) == -1).all()
+
+
+def test_onto_gamma_curves():
+    """``onto_gamma`` on curves: the closest points (bitwise) for every closed-form and
+    parametric curve and their wrappers; on an implicit curve Newton's steps along
+    ``grad f``: points on Gamma (their own closest points to 1e-12), with the normals
+    there, within twice the distance of the candidates from Gamma, not the closest points
+    themselves; a point whose zero is out of reach gets its closest point."""
+    rng = np.random.default_rng(11)
+    for c in (Circle((0.1, 0.0), 0.8), Ellipse((0, 0), 1.0, 0.6, 0.3)):
+        y0 = c.sample(200)
+        x = y0 + 0.05 * rng.standard_normal(y0.shape)
+        for b in (c, RigidMotion(c, angle=0.4), Domain(None, [c])):
+            y, n = b.onto_gamma(x)
+            y1, n1 = b.closest_normal(x)
+            np.testing.assert_array_equal(y, y1)
+            np.testing.assert_array_equal(n, n1)
+    b = ImplicitCurve(super_f, super_grad, bbox=[[-1.1, -0.9], [1.1, 0.9]])
+    y0 = b.sample(300)
+    t = b.tangent(y0)
+    x = y0 + rng.uniform(0.01, 0.1, (len(y0), 1)) * t  # tangent steps: sliding candidates
+    d = np.linalg.norm(x - b.closest_point(x), axis=1)
+    for w in (b, RigidMotion(b, angle=0.0), Domain(None, [b])):
+        y, n = w.onto_gamma(x)
+        yc, nc = w.closest_normal(y)
+        np.testing.assert_allclose(yc, y, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(n, nc, rtol=0, atol=1e-9)
+        assert (np.linalg.norm(y - x, axis=1) <= 2 * d + 1e-12).all()
+        assert np.abs(y - b.closest_point(x)).max() > 0  # the cheap path, not the closest point
+    far = np.array([[0.0, 0.0], [0.05, 0.02]])  # deep inside: Newton's estimate is far off
+    y, n = b.onto_gamma(far)
+    y1, n1 = b.closest_normal(far)
+    np.testing.assert_array_equal(y, y1)
+    np.testing.assert_array_equal(n, n1)
