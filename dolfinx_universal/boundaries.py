@@ -71,6 +71,24 @@ gradient line only within this many times Newton's estimate of the offset
 estimate; one farther out is left to the closest point."""
 
 
+def _onto_or_closest(
+    b: Boundary, x: Float, y: Float, ok: Bool, f: Float, g: Float, scale: float
+) -> tuple[Float, Float]:
+    """The level-set boundaries' :meth:`Boundary.onto_gamma` from points ``y`` moved onto
+    Gamma along gradient lines (``ok`` where that succeeded) with the level-set function
+    ``f`` and its gradient ``g`` there: the points on Gamma to the closest points' tolerance
+    (``|f| <= 1e-12 scale |g|``) with the unit normals ``g / |g|``, the closest points and
+    normals of ``x`` elsewhere. ``y`` is overwritten."""
+    gn = _normd(g)
+    ok = ok & (gn > 0) & (np.abs(f) <= 1e-12 * scale * gn)
+    n = np.zeros_like(y)
+    n[ok] = g[ok] / gn[ok, None]
+    bad = np.flatnonzero(~ok)
+    if bad.size:
+        y[bad], n[bad] = b.closest_normal(x[bad])
+    return y, n
+
+
 def _native(obj: object, cls: type, *names: str) -> bool:
     """Whether ``obj``'s class keeps ``cls``'s methods ``names`` (no subclass overrides them):
     shortcuts that bypass them are then exact."""
@@ -993,18 +1011,22 @@ class ImplicitCurve(Boundary):
 
     def _to_curve(self, y: Float, iters: int = 8) -> Float:
         """Points moved onto Gamma by Newton steps along ``grad f``."""
-        y = self._newton_onto(y, iters)
+        y = self._newton_onto(y, iters)[0]
         if not np.isfinite(y).all():
             raise ValueError("grad f vanishes on the zero level set: f is not a proper level set")
         return y
 
-    def _newton_onto(self, y: Float, iters: int) -> Float:
-        """:meth:`_to_curve`'s steps (non-finite where ``grad f`` vanishes on the way)."""
+    def _newton_onto(self, y: Float, iters: int) -> tuple[Float, Float]:
+        """:meth:`_to_curve`'s steps (non-finite where ``grad f`` vanishes on the way), and
+        Newton's first estimate of the offset ``|f| / |grad f|`` at the starts ``(n,)``."""
+        estimate = np.full(len(y), np.nan)
         with np.errstate(divide="ignore", invalid="ignore"):
-            for _ in range(iters):
-                g = self._g(y)
-                y = y - (self._s(y) / (g * g).sum(axis=1))[:, None] * g
-        return y
+            for k in range(iters):
+                g, f = self._g(y), self._s(y)
+                if k == 0:
+                    estimate = np.abs(f) / norm2(g)
+                y = y - (f / (g * g).sum(axis=1))[:, None] * g
+        return y, estimate
 
     def onto_gamma(self, x: Float) -> tuple[Float, Float]:
         """Points of Gamma near points ``x (n, 2)`` close to it and the outward normals
@@ -1015,20 +1037,12 @@ class ImplicitCurve(Boundary):
         if not _native(self, ImplicitCurve, "closest_point", "normal", "closest_normal"):
             return Boundary.onto_gamma(self, x)
         x = as_points(x)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            reach = ONTO_REACH * np.abs(self._s(x)) / norm2(self._g(x)) + 1e-12 * self._scale
-            y = self._newton_onto(x, 8)
-            g = self._g(np.where(np.isfinite(y), y, x))
-            gn = norm2(g)
-            ok = np.isfinite(y).all(axis=1) & (gn > 0) & (norm2(y - x) <= reach)
-            ok &= np.abs(self._s(np.where(ok[:, None], y, x))) <= 1e-12 * self._scale * gn
-        n = np.zeros_like(x)
-        n[ok] = g[ok] / gn[ok, None]
+        y, estimate = self._newton_onto(x, 8)
+        with np.errstate(invalid="ignore"):
+            ok = np.isfinite(y).all(axis=1)
+            ok &= norm2(y - x) <= ONTO_REACH * estimate + 1e-12 * self._scale
         y = np.where(ok[:, None], y, x)
-        bad = np.flatnonzero(~ok)
-        if bad.size:
-            y[bad], n[bad] = self.closest_normal(x[bad])
-        return y, n
+        return _onto_or_closest(self, x, y, ok, self._s(y), self._g(y), self._scale)
 
     @cached_property
     def _base_loops(self) -> list[Float]:

@@ -44,6 +44,7 @@ from .boundaries import (
     _Grid,
     _native,
     _normd,
+    _onto_or_closest,
     _rotation_matrix,
     _split,
     _tangent_basis,
@@ -973,15 +974,7 @@ class ImplicitSurface(Surface):
             return Boundary.onto_gamma(self, x)
         x = _points(x)
         y, ok = self._to_surface(x, reach=ONTO_REACH)
-        g = self._g(y)
-        gn = _normd(g)
-        ok &= (gn > 0) & (np.abs(self._phi(y)) <= 1e-12 * self._scale * gn)
-        n = np.zeros_like(y)
-        n[ok] = g[ok] / gn[ok, None]
-        bad = np.flatnonzero(~ok)
-        if bad.size:
-            y[bad], n[bad] = self.closest_normal(x[bad])
-        return y, n
+        return _onto_or_closest(self, x, y, ok, self._phi(y), self._g(y), self._scale)
 
     def normal(self, y: npt.ArrayLike) -> Float:
         y = _points(y)
