@@ -426,3 +426,92 @@ def test_sub_reductions_match_vertex_reduce():
             expected = vertex_reduce(sub.map, masked, op)[rows]
             assert np.array_equal(sub.reduce_rows(rows, vals[rows], op), expected)
         assert np.array_equal(sub.reduce(vals, op), vertex_reduce(sub.map, vals, op))
+
+
+def test_compiled_kernels_match_numpy(monkeypatch):
+    """The relaxation's C kernels (``dolfinx_universal._compiled``: the ratings, the colour
+    passes with their decisions, the candidates) evaluate the numpy code's floating-point
+    operations in its order, so the relaxed meshes are bitwise the same (vertices and the
+    background positions of the slid ones): on a circle (edges of Gamma_h capped), a spline, the
+    propeller (slides by the ray from its pole) in one process, and three steps of a moving
+    propeller on its graded background (quick sizes)."""
+    import importlib.util
+
+    from dolfinx_universal._compiled import relax_kernels
+
+    assert relax_kernels() is not None  # DOLFINx's C compiler (FFCx's) builds them
+    spec = importlib.util.spec_from_file_location(
+        "_propeller", ROOT / "demos" / "stokes_propeller.py"
+    )
+    assert spec is not None and spec.loader is not None
+    demo = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(demo)
+    comm = MPI.COMM_SELF
+    t = np.linspace(0, 2 * np.pi, 15, endpoint=False)
+    r = 1 + 0.25 * np.cos(3 * t)
+    curves = [
+        (du.Circle(CENTRE, 1.0), BOX, 0.06),
+        (du.PeriodicSpline(np.column_stack([r * np.cos(t), r * np.sin(t)])), BOX, 0.06),
+        (
+            du.RigidMotion(demo.propeller, 0.3, translation=(0.05, 0.02)),
+            [[-0.8] * 2, [0.8] * 2],
+            0.02,
+        ),
+    ]
+
+    def meshes():
+        out = []
+        for curve, box, h in curves:
+            cm = du.conform(du.equilateral_mesh(comm, box, h), curve)
+            out.append((cm.x.copy(), cm.background_x.copy()))
+        bg = demo.background_mesh(comm, *demo.sizes(True)[:2])
+        md = du.MovingDomain(bg, 2, map="I", local_size=True)
+        for angle in (0.0, 7.0, 14.0):
+            md.update(du.Domain(None, [du.RigidMotion(demo.propeller, angle=np.radians(angle))]))
+            out.append((md.mesh.geometry.x.copy(), np.zeros(0)))  # (q = 2 nodes: x's too)
+        return out
+
+    compiled = meshes()
+    monkeypatch.setenv("DOLFINX_UNIVERSAL_COMPILED", "0")
+    assert relax_kernels() is None
+    for (xc, bc), (xn, bn) in zip(compiled, meshes(), strict=True):
+        np.testing.assert_array_equal(xc, xn)
+        np.testing.assert_array_equal(bc, bn)
+
+
+def test_compiled_ratings_are_numpy_bitwise():
+    """The C kernels' ratings are bitwise numpy's (not merely close enough to give the same
+    decisions): candidate minima over vertex segments, re-rated star minima and the
+    background minima, on a randomly perturbed mesh with inverted and degenerate triangles
+    and capped edges between vertices on Gamma."""
+    from dolfinx_universal.relax import _Stars
+
+    msh = du.equilateral_mesh(MPI.COMM_SELF, [[0, 0], [1, 1]], 0.1)
+    cells, _, x = _vertex_arrays(msh)
+    rng = np.random.default_rng(3)
+    y = x + 0.02 * rng.standard_normal(x.shape)
+    y[cells[0, 1]] = y[cells[0, 2]] = y[cells[0, 0]]  # a degenerate (flat) triangle
+    n = len(y)
+    on_gamma = rng.random(n) < 0.3
+    verts = np.arange(n, dtype=np.int32)
+    stars = _Stars(y, cells, cells, rng.integers(0, 4, n), verts, on_gamma, np.full(n, 0.1))
+    assert stars.kernels is not None and stars.any_flat and stars.caps
+    cand = y[:, None, :] + 0.08 * rng.standard_normal((n, 17, 2))
+    E, row = np.arange(len(stars.ev)), np.arange(n)
+    changed = rng.random(n) < 0.5
+    stars.star_minima(np.ones(n, dtype=bool), n)
+    compiled = [stars.rate_candidates(E, row, cand), stars.background_minima(x, n)]
+    y0 = y.copy()
+    y[changed] += 0.01
+    compiled.append(stars.star_minima(changed, n))
+    y[:] = y0
+    kernels, stars.kernels = stars.kernels, None
+    stars.star_minima(np.ones(n, dtype=bool), n)
+    numpy = [stars.rate_candidates(E, row, cand), stars.background_minima(x, n)]
+    y[changed] += 0.01
+    numpy.append(stars.star_minima(changed, n))
+    for c, v in zip(compiled, numpy, strict=True):
+        np.testing.assert_array_equal(c, v)
+    q = compiled[0]
+    assert (q == -1).any() and (q > 0).any()  # inverted and valid candidates both rated
+    assert kernels is not None
