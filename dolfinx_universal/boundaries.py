@@ -790,7 +790,7 @@ class Boundary(abc.ABC):
         the closest points (:meth:`closest_normal`); a subclass may return others where
         that is much cheaper (:class:`ImplicitCurve` and
         :class:`~dolfinx_universal.surfaces.ImplicitSurface`: along the gradient line of
-        their level-set functions).
+        their level-set functions; :class:`PolarCurve`: along the ray from its pole).
         """
         return self.closest_normal(x)
 
@@ -1615,6 +1615,49 @@ class PolarCurve(ParametricCurve):
         return np.where(norm2(d) < _call(self.r, th, th.shape), -1.0, 1.0)
 
     project = Boundary.project
+
+    def onto_gamma(self, x: Float) -> tuple[Float, Float]:
+        """Points of Gamma near points ``x (n, 2)`` close to it and the outward normals
+        there: the point ``c(theta)`` of Gamma on the ray from the pole through ``x`` (one
+        evaluation of ``r`` and ``dr``, no search: about a tenth of the cost of a closest
+        point). Where the ray meets Gamma at a grazing angle (the point farther from ``x``
+        than :data:`ONTO_REACH` times its distance from the tangent line there), one
+        Newton step along Gamma moves it onto the normal line through ``x``; a point still
+        that far gets its closest point."""
+        names = ("point", "derivative", "closest_point", "normal", "closest_normal")
+        if not _native(self, PolarCurve, *names):
+            return Boundary.onto_gamma(self, x)
+        x = as_points(x)
+        d = x - self.center
+        t = np.mod(np.arctan2(d[:, 1], d[:, 0]), self.period)
+        y, c1 = self._point_derivative(t)
+        n = _unit(np.column_stack([c1[:, 1], -c1[:, 0]]))  # as _outward()
+        bad = np.flatnonzero(~self._near(x, y, n))
+        if bad.size:  # Newton on cross(c(t) - x, n) = 0 (its derivative is -|c'(t)|)
+            xb, nb = x[bad], n[bad]
+            t = t[bad] + cross2(y[bad] - xb, nb) / norm2(c1[bad])
+            yb, c1 = self._point_derivative(np.mod(t, self.period))
+            nb = _unit(np.column_stack([c1[:, 1], -c1[:, 0]]))
+            far = np.flatnonzero(~self._near(xb, yb, nb))
+            if far.size:
+                yb[far], nb[far] = self.closest_normal(xb[far])
+            y[bad], n[bad] = yb, nb
+        return y, n
+
+    def _point_derivative(self, t: Float) -> tuple[Float, Float]:
+        """``c(t)`` and ``c'(t)`` ``(m, 2)`` each, with one evaluation of ``r`` and ``dr``."""
+        u, v = self._frame(t)
+        r, dr = (_call(f, t, t.shape)[:, None] for f in (self.r, self.dr))
+        return self.center + r * u, dr * u + r * v  # as point() and derivative()
+
+    def _near(self, x: Float, y: Float, n: Float) -> Bool:
+        """Whether the points ``y`` of Gamma (normals ``n``) are within :data:`ONTO_REACH`
+        times the distance of ``x`` from their tangent lines (finite)."""
+        off = x - y
+        scale = float(norm2(self._bbox[1:] - self._bbox[:1])[0])
+        with np.errstate(invalid="ignore"):
+            reach = ONTO_REACH * np.abs((off * n).sum(axis=1)) + 1e-12 * scale
+            return np.isfinite(n).all(axis=1) & (norm2(off) <= reach)
 
 
 class Ellipse(ParametricCurve):

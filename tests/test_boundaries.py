@@ -561,8 +561,9 @@ def test_projection_starts_change_nothing(name):
 
 
 def test_onto_gamma_curves():
-    """``onto_gamma`` on curves: the closest points (bitwise) for every closed-form and
-    parametric curve and their wrappers; on an implicit curve Newton's steps along
+    """``onto_gamma`` on curves: the closest points (bitwise) for the closed-form and
+    parametric curves other than :class:`PolarCurve` (``test_onto_gamma_polar``) and their
+    wrappers; on an implicit curve Newton's steps along
     ``grad f``: points on Gamma (their own closest points to 1e-12), with the normals
     there, within twice the distance of the candidates from Gamma, not the closest points
     themselves; a point whose zero is out of reach gets its closest point."""
@@ -590,5 +591,67 @@ def test_onto_gamma_curves():
     far = np.array([[0.0, 0.0], [0.05, 0.02]])  # deep inside: Newton's estimate is far off
     y, n = b.onto_gamma(far)
     y1, n1 = b.closest_normal(far)
+    np.testing.assert_array_equal(y, y1)
+    np.testing.assert_array_equal(n, n1)
+
+
+def test_onto_gamma_polar(monkeypatch):
+    """``PolarCurve.onto_gamma``: points of Gamma (their own closest points to 1e-12) with
+    the normals there, each within ``ONTO_REACH`` times its candidate's distance from the
+    tangent line at it, or the candidate's closest point. Tangent steps on a propeller whose
+    flanks meet the rays from the pole at grazing angles (cosine down to 0.37) take the ray
+    (not the closest point) or, at the flanks, the Newton step onto the normal line; points
+    far off take the closest point; a subclass that changes the geometry gets closest
+    points."""
+    from dolfinx_universal.boundaries import ONTO_REACH
+
+    def r(t):
+        return 0.12 + 0.38 * np.exp(-(np.sin(1.5 * t) ** 2) / 0.3)
+
+    def dr(t):
+        return -0.38 * np.exp(-(np.sin(1.5 * t) ** 2) / 0.3) * 1.5 * np.sin(3 * t) / 0.3
+
+    def d2r(t):
+        g, dg = -1.5 * np.sin(3 * t) / 0.3, -4.5 * np.cos(3 * t) / 0.3
+        return 0.38 * np.exp(-(np.sin(1.5 * t) ** 2) / 0.3) * (g**2 + dg)
+
+    b = PolarCurve(r, dr, d2r, center=(0.1, -0.05))
+    rng = np.random.default_rng(5)
+    y0 = b.sample(400)
+    t = np.column_stack([-b.normal(y0)[:, 1], b.normal(y0)[:, 0]])
+    x = y0 + rng.uniform(-0.02, 0.02, (len(y0), 1)) * t  # tangent steps: sliding candidates
+    d = x - b.center
+    u = d / np.linalg.norm(d, axis=1)[:, None]
+    assert (np.abs((u * b.normal(b.closest_point(x))).sum(axis=1)) < 0.4).any()  # grazing
+    far = b.center + np.array([[-1.0, -1.0], [-1.0, 0.8], [0.0, 0.05]])
+    calls = []
+    closest = PolarCurve.closest_normal
+    monkeypatch.setattr(
+        PolarCurve, "closest_normal", lambda self, z: (calls.append(len(z)), closest(self, z))[1]
+    )
+    for w in (b, RigidMotion(b, angle=0.0), Domain(None, [b])):
+        for pts, cheap in ((x, True), (far, False)):
+            calls.clear()
+            y, n = w.onto_gamma(pts)
+            num_closest = sum(calls)
+            yc, nc = w.closest_normal(y)
+            np.testing.assert_allclose(yc, y, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(n, nc, rtol=0, atol=1e-9)
+            off = pts - y
+            near = np.linalg.norm(off, axis=1) <= ONTO_REACH * np.abs((off * n).sum(1)) + 1e-12
+            is_closest = np.abs(y - w.closest_point(pts)).max(axis=1) <= 1e-14
+            assert (near | is_closest).all()
+            if cheap:  # the ray or the Newton step, no closest point (except where the ray
+                assert num_closest == 0 and is_closest.mean() < 0.1  # is the normal line)
+            else:
+                assert num_closest > 0
+
+    class Moved(PolarCurve):
+        def closest_point(self, z):
+            return super().closest_point(z)
+
+    m = Moved(r, dr, d2r, center=(0.1, -0.05))
+    y, n = m.onto_gamma(x)
+    y1, n1 = Boundary.closest_normal(m, x)
     np.testing.assert_array_equal(y, y1)
     np.testing.assert_array_equal(n, n1)
