@@ -29,6 +29,7 @@ import importlib.machinery
 import importlib.util
 import io
 import os
+import re
 import sys
 import sysconfig
 import tempfile
@@ -39,32 +40,6 @@ from typing import Any
 import numpy as np
 
 __all__ = ["relax_kernels", "pointer"]
-
-_CDEF = """
-void rate_candidates(const double *y, const int64_t *ea, const int64_t *eb,
-                     const int64_t *ev, const uint8_t *flat, const double *cap_a,
-                     const double *cap_b, const int64_t *row, const double *cand, int64_t nc,
-                     const int64_t *E, int64_t n, const uint8_t *first, double angle_scale,
-                     double radius_scale4, double *out);
-int64_t move_colours(double *y, const int64_t *ea, const int64_t *eb, const int64_t *ev,
-                     const uint8_t *flat, const double *cap_a, const double *cap_b,
-                     const int64_t *bounds, const int64_t *colours, int64_t ncolours,
-                     const uint8_t *active, const int64_t *row, const double *cand,
-                     const double *cand_n, int64_t nc, const int64_t *verts,
-                     const int64_t *is_gamma, const uint8_t *full_step, double *step,
-                     const double *hmax, double *nrm, uint8_t *changed, double tie,
-                     double angle_scale, double radius_scale4);
-void star_minima(const double *y, const int64_t *pv, const int64_t *ea, const int64_t *eb,
-                 const int64_t *ev, const uint8_t *flat, const double *cap_a,
-                 const double *cap_b, int64_t n, const uint8_t *changed, double angle_scale,
-                 double radius_scale4, double *qe, double *star);
-void compass_candidates(const double *y, const int64_t *verts, const int64_t *act,
-                        int64_t n, const double *step, const double *offsets, int64_t nc,
-                        double *cand);
-void background_minima(const double *x, const int64_t *pv, const int64_t *ea,
-                       const int64_t *eb, const int64_t *ev, int64_t n, double angle_scale,
-                       double radius_scale4, double *star);
-"""
 
 _SOURCE = r"""
 #include <math.h>
@@ -268,6 +243,12 @@ void compass_candidates(const double *y, const int64_t *verts, const int64_t *ac
     }
 }
 """
+
+_CDEF = "\n".join(
+    f"{signature};" for signature in re.findall(r"^(?:void|int64_t) \w+\([^)]*\)", _SOURCE, re.M)
+)
+"""The declarations cffi needs: the signatures of the kernels (the non-static functions)."""
+
 
 _FLAGS = [] if sys.platform == "win32" else ["-O2", "-ffp-contract=off"]
 """No fused multiply-adds (aarch64 compilers contract by default): bitwise numpy's results."""

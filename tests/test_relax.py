@@ -40,6 +40,19 @@ def circle24():
     return {r: _circle(MPI.COMM_WORLD, 24, r) for r in (False, True)}
 
 
+def _propeller_demo():
+    """The module ``demos/stokes_propeller.py`` (its propeller and graded background)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(
+        "_propeller", ROOT / "demos" / "stokes_propeller.py"
+    )
+    assert spec is not None and spec.loader is not None
+    demo = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(demo)
+    return demo
+
+
 def _reference_quality(p, a, b, orient):
     """Plain reference: angles and radii from their textbook formulas, one triangle at a time."""
     out = []
@@ -89,14 +102,7 @@ def test_same_set_same_mesh():
     through another parametrisation: on its graded background (quick sizes) the relaxed
     meshes agree to rounding. Decisions on exact comparisons of near-tied candidate
     qualities (argmax, strict gain) made them differ by 2.8e-3 (a step) at a few vertices."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location(
-        "_propeller", ROOT / "demos" / "stokes_propeller.py"
-    )
-    assert spec is not None and spec.loader is not None
-    demo = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(demo)
+    demo = _propeller_demo()
     comm = MPI.COMM_WORLD
     md = du.MovingDomain(
         demo.background_mesh(comm, *demo.sizes(True)[:2]), 2, map="I", local_size=True
@@ -435,17 +441,10 @@ def test_compiled_kernels_match_numpy(monkeypatch):
     background positions of the slid ones): on a circle (edges of Gamma_h capped), a spline, the
     propeller (slides by the ray from its pole) in one process, and three steps of a moving
     propeller on its graded background (quick sizes)."""
-    import importlib.util
-
     from dolfinx_universal._compiled import relax_kernels
 
     assert relax_kernels() is not None  # DOLFINx's C compiler (FFCx's) builds them
-    spec = importlib.util.spec_from_file_location(
-        "_propeller", ROOT / "demos" / "stokes_propeller.py"
-    )
-    assert spec is not None and spec.loader is not None
-    demo = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(demo)
+    demo = _propeller_demo()
     comm = MPI.COMM_SELF
     t = np.linspace(0, 2 * np.pi, 15, endpoint=False)
     r = 1 + 0.25 * np.cos(3 * t)
