@@ -113,9 +113,10 @@ void rate_candidates(const double *y, const int64_t *ea, const int64_t *eb,
    serial colour passes of relax._Compass.move, decisions included): the entries of colour
    k are bounds[k]..bounds[k+1], in vertex segments. Each active vertex rates its candidates
    (the worst over its entries), takes the first within `tie` of the best if that beats
-   staying (candidate 0) by more than `tie`, and scales its step; vertices of one colour
-   share no triangle, so rating them one after the other sees what the numpy code's
-   simultaneous rating sees. Returns the number of moves. */
+   staying (candidate 0) by more than `tie`, and scales its step (by `grow` after a move at
+   the full step, `hold` after another move, `shrink` where nothing helped); vertices of
+   one colour share no triangle, so rating them one after the other sees what the numpy code's
+   simultaneous rating sees. Returns the number of moves, -1 for more than 64 candidates. */
 int64_t move_colours(double *y, const int64_t *ea, const int64_t *eb, const int64_t *ev,
                      const uint8_t *flat, const double *cap_a, const double *cap_b,
                      const int64_t *bounds, const int64_t *colours, int64_t ncolours,
@@ -123,7 +124,8 @@ int64_t move_colours(double *y, const int64_t *ea, const int64_t *eb, const int6
                      const double *cand_n, int64_t nc, const int64_t *verts,
                      const int64_t *is_gamma, const uint8_t *full_step, double *step,
                      const double *hmax, double *nrm, uint8_t *changed, double tie,
-                     double angle_scale, double radius_scale4)
+                     double grow, double hold, double shrink, double angle_scale,
+                     double radius_scale4)
 {
     double q[64];
     int64_t moves = 0;
@@ -162,7 +164,7 @@ int64_t move_colours(double *y, const int64_t *ea, const int64_t *eb, const int6
                 ++best;
             if (best == nc)
                 best = 0;
-            double factor = 0.4;
+            double factor = shrink;
             if (q[best] > q[0] + tie)
             {
                 int64_t v = verts[i];
@@ -175,7 +177,7 @@ int64_t move_colours(double *y, const int64_t *ea, const int64_t *eb, const int6
                     nrm[2 * v + 1] = pn[2 * best + 1];
                 }
                 changed[v] = 1;
-                factor = full_step[nc * is_gamma[i] + best] ? 1.5 : 0.75;
+                factor = full_step[nc * is_gamma[i] + best] ? grow : hold;
                 ++moves;
             }
             double grown = factor * step[i];

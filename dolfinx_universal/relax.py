@@ -125,6 +125,10 @@ TARGET_RADIUS_RATIO = 2.6
 """Circumradius / inradius at which the radius term of :func:`shape_quality` is 1."""
 _ANGLE_SCALE = 1.0 / np.sin(np.radians(TARGET_ANGLE))
 _RADIUS_SCALE = TARGET_RADIUS_RATIO / 2.0
+_RADIUS_SCALE4 = 4.0 * _RADIUS_SCALE  # (the kernel's factor of cross^2, one double)
+_GROW, _HOLD, _SHRINK = 1.5, 0.75, 0.4
+"""Step factors of the compass search: after a move at the full step, after a move at a
+shorter step, and where nothing helped."""
 _MAX_COLOURS = 62
 
 
@@ -204,7 +208,7 @@ def _star_quality(
     with np.errstate(divide="ignore", invalid="ignore"):
         q = np.minimum(
             cross * np.minimum(np.minimum(su, sv), lab) * _ANGLE_SCALE,
-            cross * cross * (4.0 * _RADIUS_SCALE) / (su + sv + lab),
+            cross * cross * _RADIUS_SCALE4 / (su + sv + lab),
         ) / (su * sv * lab)
     return np.where(cross > 0, q, -1.0)
 
@@ -624,7 +628,7 @@ class _Stars:
     def _bind(self, ffi: Any) -> None:
         """The C kernels' arguments that stay the same (``y`` is written in place)."""
         i64 = np.int64
-        self._k = k = {
+        k = {
             "ea": np.ascontiguousarray(self.ea, dtype=i64),
             "eb": np.ascontiguousarray(self.eb, dtype=i64),
             "ev": np.ascontiguousarray(self.ev, dtype=i64),
@@ -659,7 +663,7 @@ class _Stars:
             p["y"], p["ea"], p["eb"], p["ev"], p["flat"], p["cap_a"], p["cap_b"],
             pointer(ffi, row, "int64_t"), pointer(ffi, cand, "double"), nc,
             pointer(ffi, E, "int64_t"), len(E), p["first"], _ANGLE_SCALE,
-            4.0 * _RADIUS_SCALE, pointer(ffi, out, "double"),
+            _RADIUS_SCALE4, pointer(ffi, out, "double"),
         )  # fmt: skip
         return out
 
@@ -693,7 +697,7 @@ class _Stars:
             ffi, k = self.kernels.ffi, self._p
             self.kernels.lib.background_minima(
                 pointer(ffi, np.ascontiguousarray(x0, dtype=np.float64), "double"), k["pv"],
-                k["ea"], k["eb"], k["ev"], len(self.ev), _ANGLE_SCALE, 4.0 * _RADIUS_SCALE,
+                k["ea"], k["eb"], k["ev"], len(self.ev), _ANGLE_SCALE, _RADIUS_SCALE4,
                 pointer(ffi, star, "double"),
             )  # fmt: skip
             return star
@@ -719,7 +723,7 @@ class _Stars:
         self.kernels.lib.star_minima(
             p["y"], p["pv"], p["ea"], p["eb"], p["ev"], p["flat"], p["cap_a"], p["cap_b"],
             len(ev), pointer(ffi, changed.view(np.uint8), "uint8_t"), _ANGLE_SCALE,
-            4.0 * _RADIUS_SCALE, p["qe"], pointer(ffi, star, "double"),
+            _RADIUS_SCALE4, p["qe"], pointer(ffi, star, "double"),
         )  # fmt: skip
         return star
 
@@ -844,9 +848,11 @@ class _Compass:
             len(colours), pointer(ffi, active.view(np.uint8), "uint8_t"),
             pointer(ffi, self.row, "int64_t"), pointer(ffi, self.cand, "double"), cand_n,
             self.nc, k["verts"], k["is_gamma"], k["full_step"], k["step"], k["hmax"],
-            k["nrm"], pointer(ffi, changed.view(np.uint8), "uint8_t"), TIE, _ANGLE_SCALE,
-            4.0 * _RADIUS_SCALE,
+            k["nrm"], pointer(ffi, changed.view(np.uint8), "uint8_t"), TIE, _GROW, _HOLD,
+            _SHRINK, _ANGLE_SCALE, _RADIUS_SCALE4,
         )  # fmt: skip
+        if moves < 0:
+            raise ValueError(f"move_colours: {self.nc} candidates per vertex, at most 64")
         return int(moves)
 
     def _kernel_pointers(self, ffi: Any) -> dict[str, Any]:
@@ -888,8 +894,8 @@ class _Compass:
         if self.cand_n is not None and on.any():
             self.nrm[verts[win[on]]] = self.cand_n[row[win[on]], bw[on]]
         # Grow the step after a full step, shrink it where nothing helped.
-        factor = np.full(len(S), 0.4)
-        factor[gain] = np.where(self.full_step[self.is_gamma[win], bw], 1.5, 0.75)
+        factor = np.full(len(S), _SHRINK)
+        factor[gain] = np.where(self.full_step[self.is_gamma[win], bw], _GROW, _HOLD)
         self.step[S] = np.minimum(factor * self.step[S], self.hmax[S])
         return win
 
