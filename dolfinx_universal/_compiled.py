@@ -1,16 +1,22 @@
-"""C kernels of the 2D vertex relaxation, compiled at first use with cffi.
+"""C kernels of the vertex relaxation, compiled at first use with cffi.
 
-The relaxation (:mod:`dolfinx_universal.relax`) makes dozens of colour passes per update,
-each rating a few thousand candidates: in numpy every pass paid about twenty array calls
-and the gathers of its candidates, and those per-call costs, not the arithmetic, were most
-of the relaxation's time. Here a sweep's colour passes (ratings, decisions, steps), the
-star minima and the compass candidates are C loops.
+The relaxation (:mod:`dolfinx_universal.relax`, :mod:`dolfinx_universal._dvr` for
+tetrahedra) makes dozens of colour passes per update, each rating a few thousand
+candidates: in numpy every pass paid tens of array calls and the gathers of its
+candidates, and those per-call costs, not the arithmetic, were most of the relaxation's
+time. Here, on triangles, a sweep's colour passes (ratings, decisions, steps), the star
+minima and the compass candidates are C loops; on tetrahedra, each colour's visit (ascent
+directions, line searches, compass, the slides' candidates and their exact ratings), the
+colouring and the set-up of the stars.
 
 The kernels evaluate the same floating-point operations in the same order as the numpy
 code they replace (no contraction into fused multiply-adds, ``-ffp-contract=off``; square
-roots and quotients correctly rounded, ``hypot`` from the same libm), so both give bitwise
-the same ratings, hence the same meshes: the numpy code stays as the reference, the
-fallback and the path of the colour passes on several ranks (tests compare the two).
+roots and quotients correctly rounded, ``hypot`` from the same libm, the tetrahedra's cube
+root from IEEE operations in both), so both give bitwise the same ratings, hence the same
+meshes: the numpy code stays as the reference, the fallback and the path of the colour
+passes on several ranks (tests compare the two). Where a kernel skips work the numpy code
+does (a tetrahedron candidate's remaining ratings once it cannot be chosen), the choices
+are the same.
 
 The C compiler is the one DOLFINx itself needs (FFCx compiles every form through cffi), so
 this adds no dependency. The module is built once per source and Python version into a
@@ -44,6 +50,8 @@ __all__ = ["relax_kernels", "pointer"]
 _SOURCE = r"""
 #include <math.h>
 #include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
 
 /* shape_quality of the counter-clockwise triangle (p, a, b), lab = |b - a|: the operations
    of relax._star_quality, in its order; -1 where not positively oriented. */
@@ -243,6 +251,605 @@ void compass_candidates(const double *y, const int64_t *verts, const int64_t *ac
             c[2 * k + 1] = y1 + s * offsets[2 * k + 1];
         }
     }
+}
+
+/* ---- Tetrahedra: the directional relaxation of _dvr (same operations, same order) ---- */
+
+/* _dvr.cube_root: the exponent's bits over 3, then three Halley steps (x > 0, finite). */
+static inline double cube_root(double x)
+{
+    int small = x < 2.2250738585072014e-308;
+    double xs = small ? x * 18014398509481984.0 : x; /* 2^54 */
+    uint64_t bits;
+    memcpy(&bits, &xs, sizeof bits);
+    bits = bits / 3 + 0x2A9F7893782DA1CEull;
+    double t;
+    memcpy(&t, &bits, sizeof t);
+    double x2 = xs + xs;
+    for (int i = 0; i < 3; ++i)
+    {
+        double t3 = t * t;
+        t3 *= t;
+        double num = t3 + x2;
+        t3 += t3;
+        t3 += xs;
+        num /= t3;
+        t *= num;
+    }
+    return small ? t * 3.814697265625e-06 : t; /* 2^-18 */
+}
+
+/* _dvr.rating_quality of one rating. */
+static inline double rating_quality(double r)
+{
+    if (r == INFINITY)
+        return INFINITY;
+    if (!(r > 0.0))
+        return -1.0;
+    return cube_root(r);
+}
+
+/* _dvr._rating: s^2 / L^3 where s > 0 (and that positive), else -1. */
+static inline double rating(double s, double L)
+{
+    double r = L * L;
+    r *= L;
+    r = (s * s) / r;
+    return (s > 0.0) & (r > 0.0) ? r : -1.0;
+}
+
+/* _dvr.star_terms of one entry (vertex ip, facet ia, ib, ic of the points y) into
+   t[k * stride] for k = ux, uy, uz, nx, ny, nz, lsq, s, L. */
+static inline void star_terms(const double *y, int64_t ip, int64_t ia, int64_t ib,
+                              int64_t ic, double k15, double *t, int64_t stride)
+{
+    const double *pa = y + 3 * ia, *pb = y + 3 * ib, *pc = y + 3 * ic, *pp = y + 3 * ip;
+    double ax = pa[0], ay = pa[1], az = pa[2];
+    double bx = pb[0] - ax, by = pb[1] - ay, bz = pb[2] - az;
+    double cx = pc[0] - ax, cy = pc[1] - ay, cz = pc[2] - az;
+    double nx = (bz * cy - by * cz) * k15;
+    double ny = (bx * cz - bz * cx) * k15;
+    double nz = (by * cx - bx * cy) * k15;
+    double lsq = bx * bx + by * by + bz * bz + cx * cx + cy * cy + cz * cz;
+    lsq -= bx * cx + by * cy + bz * cz;
+    lsq *= 8.0 / 9.0;
+    lsq = lsq > 2.2250738585072014e-308 ? lsq : 2.2250738585072014e-308;
+    bx += cx;
+    by += cy;
+    bz += cz;
+    double ux = pp[0] - ax - bx / 3.0;
+    double uy = pp[1] - ay - by / 3.0;
+    double uz = pp[2] - az - bz / 3.0;
+    t[0] = ux;
+    t[stride] = uy;
+    t[2 * stride] = uz;
+    t[3 * stride] = nx;
+    t[4 * stride] = ny;
+    t[5 * stride] = nz;
+    t[6 * stride] = lsq;
+    t[7 * stride] = ux * nx + uy * ny + uz * nz;
+    t[8 * stride] = ux * ux + uy * uy + uz * uz + lsq;
+}
+
+/* _dvr.line_rating of entry j of the terms w at step length t along (dx, dy, dz). */
+static inline double line_rating(const double *w, int64_t j, int64_t stride, double dx,
+                                double dy, double dz, double t)
+{
+    double sig = dx * w[3 * stride + j] + dy * w[4 * stride + j] + dz * w[5 * stride + j];
+    double beta2 = dx * w[j] + dy * w[stride + j] + dz * w[2 * stride + j];
+    beta2 *= 2.0;
+    double st = t * sig;
+    st += w[7 * stride + j];
+    double den = beta2 + t;
+    den *= t;
+    den += w[8 * stride + j];
+    return rating(st, den);
+}
+
+/* A rating below which a candidate's quality is below qmax - tie for certain: the cube of
+   that, less 1e-12 relative (cube_root errs by a few ulps); -inf where qmax - tie <= 0. A
+   candidate whose worst rating falls below it cannot be the first within tie of the best,
+   so its other entries are not rated: the choices are those of rating them all. The
+   candidates' loops rate first the entry that was the worst of the previous candidate
+   (j0): a poor candidate is then found out after one entry. */
+static inline double below(double qmax, double tie)
+{
+    double q = qmax - tie;
+    return q > 0.0 ? q * q * q * (1.0 - 1e-12) : -INFINITY;
+}
+
+/* The first of the qualities q[0..n) within tie of their maximum. */
+static inline int64_t first_best(const double *q, int64_t n, double tie)
+{
+    double mx = -INFINITY;
+    for (int64_t c = 0; c < n; ++c)
+        mx = q[c] > mx ? q[c] : mx;
+    mx -= tie;
+    for (int64_t c = 0; c < n; ++c)
+        if (q[c] >= mx)
+            return c;
+    return 0;
+}
+
+/* A vertex's move: its position, its star's ratings and its next step (_Directional._apply). */
+static inline void dvr_move(double *y, double *X, double *Y, double *Z, int64_t p,
+                            const double *pos, const int64_t *cell_idx, const int64_t *csub,
+                            int64_t e0, int64_t ne, const double *rnew, double *rcell,
+                            uint8_t *again, double *step, double hmin, double hmax, double tb)
+{
+    y[3 * p] = X[p] = pos[0];
+    y[3 * p + 1] = Y[p] = pos[1];
+    y[3 * p + 2] = Z[p] = pos[2];
+    for (int64_t j = 0; j < ne; ++j) /* the star's new ratings; its vertices work again */
+    {
+        int64_t c = cell_idx[e0 + j];
+        rcell[c] = rnew[j];
+        for (int k = 0; k < 4; ++k)
+            if (csub[4 * c + k] >= 0)
+                again[csub[4 * c + k]] = 1;
+    }
+    double a = 1.5 * fabs(tb);
+    a = a < hmin ? hmin : a;
+    *step = a > hmax ? hmax : a;
+}
+
+/* The slides' candidates of a vertex on Gamma at y with normal n (_Directional.
+   slide_candidates in the world's frame; tangent_directions' operations): the fractions
+   slide_steps of the best step tb along the direction d, then nt directions cos t1 + sin t2
+   in the tangent plane at the step; into pc (ns, 3) and their steps tg (ns). */
+static inline void slide_candidates(const double *y, const double *n, double dx, double dy,
+                                    double dz, double tb, double step,
+                                    const double *slide_steps, int64_t nss,
+                                    const double *tcos, const double *tsin, int64_t nt,
+                                    double *pc, double *tg)
+{
+    double d[3] = {dx, dy, dz};
+    for (int64_t k = 0; k < nss; ++k)
+    {
+        tg[k] = tb * slide_steps[k];
+        for (int i = 0; i < 3; ++i)
+            pc[3 * k + i] = y[i] + tg[k] * d[i];
+    }
+    if (!nt)
+        return;
+    double nn = sqrt(n[0] * n[0] + n[1] * n[1] + n[2] * n[2]);
+    double u[3] = {n[0] / nn, n[1] / nn, n[2] / nn};
+    int a = 0; /* the axis least aligned with the normal (the first of equals) */
+    for (int i = 1; i < 3; ++i)
+        if (fabs(u[i]) < fabs(u[a]))
+            a = i;
+    double t1[3] = {-u[a] * u[0], -u[a] * u[1], -u[a] * u[2]};
+    t1[a] += 1.0;
+    double tn = sqrt(t1[0] * t1[0] + t1[1] * t1[1] + t1[2] * t1[2]);
+    for (int i = 0; i < 3; ++i)
+        t1[i] /= tn;
+    double t2[3] = {u[1] * t1[2] - u[2] * t1[1], u[2] * t1[0] - u[0] * t1[2],
+                    u[0] * t1[1] - u[1] * t1[0]};
+    for (int64_t k = 0; k < nt; ++k)
+    {
+        tg[nss + k] = step;
+        for (int i = 0; i < 3; ++i)
+            pc[3 * (nss + k) + i] = y[i] + step * (tcos[k] * t1[i] + tsin[k] * t2[i]);
+    }
+}
+
+/* One visit of the vertices S[0..nS) of a colour (_Directional.visit on one rank): each
+   vertex with its worst rating in (0, active) takes its ascent direction, the best of the
+   line steps along it, and, inside and stuck, the best of the compass candidates (nd
+   directions times ncs steps); it moves (inside vertices) if that beats staying by more
+   than tie. Vertices on Gamma with a direction are returned in G (their direction, best
+   line step and quality) for the slides (dvr_slides). The entries of movable vertex v are
+   vfirst[v]..vfirst[v] + vcount[v]; w is scratch of 9 * stride doubles, stride at least
+   the largest star. Returns the number of moves, -1 for more than 64 candidates. */
+int64_t dvr_visit(double *y, double *X, double *Y, double *Z, const int64_t *pv,
+                  const int64_t *f0, const int64_t *f1, const int64_t *f2,
+                  const int64_t *cell_idx, const int64_t *csub, double *rcell,
+                  const int64_t *vfirst, const int64_t *vcount, const uint8_t *gamma,
+                  const double *nrm, double *step, const double *hmin, const double *hmax,
+                  const int64_t *S, int64_t nS, const double *line_steps, int64_t nl,
+                  const double *dirs, int64_t nd, const double *compass_steps, int64_t ncs,
+                  const double *slide_steps, int64_t nss, const double *tcos,
+                  const double *tsin, int64_t nt, double k15, double tie, double near_worst,
+                  double active, double *w, int64_t stride, uint8_t *again, int64_t *G,
+                  double *gdv, double *gtb, double *gq0, double *gpc, double *gtg, int64_t *nG)
+{
+    double qc[64], rmin[64], rnew[stride > 0 ? stride : 1];
+    if (nl > 64 || nd * ncs > 64)
+        return -1;
+    int64_t moves = 0, ng = 0;
+    for (int64_t i = 0; i < nS; ++i)
+    {
+        int64_t v = S[i], e0 = vfirst[v], ne = vcount[v], p = pv[e0];
+        double r0 = INFINITY;
+        for (int64_t j = 0; j < ne; ++j)
+        {
+            double r = rcell[cell_idx[e0 + j]];
+            r0 = r < r0 ? r : r0;
+        }
+        if (!(r0 < active && r0 > 0.0))
+            continue;
+        double q0 = rating_quality(r0);
+        for (int64_t j = 0; j < ne; ++j)
+            star_terms(y, p, f0[e0 + j], f1[e0 + j], f2[e0 + j], k15, w + j, stride);
+        /* The ascent direction: the near-worst entries' weighted unit gradients. */
+        double lim = q0 + near_worst;
+        lim = lim * lim * lim;
+        double dx = 0.0, dy = 0.0, dz = 0.0;
+        for (int64_t j = 0; j < ne; ++j)
+        {
+            double r = rcell[cell_idx[e0 + j]];
+            if (!(r < lim))
+                continue;
+            double q = rating_quality(r);
+            double a = (2.0 / 3.0) / w[7 * stride + j], b = 2.0 / w[8 * stride + j];
+            double gx = a * w[3 * stride + j] - b * w[j];
+            double gy = a * w[4 * stride + j] - b * w[stride + j];
+            double gz = a * w[5 * stride + j] - b * w[2 * stride + j];
+            double gn = sqrt(gx * gx + gy * gy + gz * gz);
+            double wt = 1.0 - (q - q0) / near_worst;
+            wt = (wt > 0.0) & (gn > 0.0) ? wt / gn : 0.0;
+            dx += wt * gx;
+            dy += wt * gy;
+            dz += wt * gz;
+        }
+        if (gamma[v]) /* in the tangent plane */
+        {
+            const double *nn = nrm + 3 * p;
+            double d = dx * nn[0] + dy * nn[1] + dz * nn[2];
+            dx -= d * nn[0];
+            dy -= d * nn[1];
+            dz -= d * nn[2];
+        }
+        double dn = sqrt(dx * dx + dy * dy + dz * dz);
+        if (dn > 0.0)
+        {
+            dx /= dn;
+            dy /= dn;
+            dz /= dn;
+        }
+        /* The line search. */
+        double qmax = -INFINITY;
+        int64_t jw = 0;
+        for (int64_t k = 0; k < nl; ++k)
+        {
+            double t = line_steps[k] * step[v], m = INFINITY, out = below(qmax, tie);
+            for (int64_t i = 0, j0 = jw; i < ne && m >= out; ++i)
+            {
+                int64_t j = i == 0 ? j0 : i == j0 ? 0 : i;
+                double r = line_rating(w, j, stride, dx, dy, dz, t);
+                if (r < m)
+                {
+                    m = r;
+                    jw = j;
+                }
+            }
+            qc[k] = m < out ? -INFINITY : rating_quality(m);
+            qmax = qc[k] > qmax ? qc[k] : qmax;
+        }
+        int64_t best = first_best(qc, nl, tie);
+        double qb = qc[best], tb = line_steps[best] * step[v];
+        int gain = (qb > q0 + tie) & (dn > 0.0);
+        double ex = dx, ey = dy, ez = dz; /* the direction of the chosen candidate */
+        if (gamma[v])
+        {
+            if (dn > 0.0)
+            {
+                G[ng] = v;
+                gdv[3 * ng] = dx;
+                gdv[3 * ng + 1] = dy;
+                gdv[3 * ng + 2] = dz;
+                gtb[ng] = tb;
+                gq0[ng] = q0;
+                if (gpc)
+                    slide_candidates(y + 3 * p, nrm + 3 * p, dx, dy, dz, tb, step[v],
+                                     slide_steps, nss, tcos, tsin, nt, gpc + 3 * (nss + nt) * ng,
+                                     gtg + (nss + nt) * ng);
+                ++ng;
+            }
+            continue;
+        }
+        if (!gain && ncs > 0) /* stuck: the compass */
+        {
+            int64_t nc = nd * ncs;
+            qmax = -INFINITY;
+            for (int64_t c = 0; c < nc; ++c)
+            {
+                const double *d = dirs + 3 * (c % nd);
+                double t = compass_steps[c / nd] * step[v], m = INFINITY, out = below(qmax, tie);
+                for (int64_t i = 0, j0 = jw; i < ne && m >= out; ++i)
+                {
+                    int64_t j = i == 0 ? j0 : i == j0 ? 0 : i;
+                    double r = line_rating(w, j, stride, d[0], d[1], d[2], t);
+                    if (r < m)
+                    {
+                        m = r;
+                        jw = j;
+                    }
+                }
+                qc[c] = m < out ? -INFINITY : rating_quality(m);
+                qmax = qc[c] > qmax ? qc[c] : qmax;
+            }
+            int64_t bc = first_best(qc, nc, tie);
+            if (qc[bc] > q0 + tie)
+            {
+                gain = 1;
+                tb = compass_steps[bc / nd] * step[v];
+                ex = dirs[3 * (bc % nd)];
+                ey = dirs[3 * (bc % nd) + 1];
+                ez = dirs[3 * (bc % nd) + 2];
+            }
+        }
+        if (!gain)
+            continue;
+        double pos[3] = {y[3 * p] + tb * ex, y[3 * p + 1] + tb * ey, y[3 * p + 2] + tb * ez};
+        for (int64_t j = 0; j < ne; ++j)
+            rnew[j] = line_rating(w, j, stride, ex, ey, ez, tb);
+        dvr_move(y, X, Y, Z, p, pos, cell_idx, csub, e0, ne, rnew, rcell, again, step + v,
+                 hmin[v], hmax[v], tb);
+        ++moves;
+    }
+    *nG = ng;
+    return moves;
+}
+
+/* The slides of the vertices on Gamma G[0..nG) (_Directional._slides on one rank): their
+   candidates pp (nG, ns, 3), projected onto Gamma with normals pn, at steps tg (nG, ns),
+   rated exactly (no candidate may stretch an edge of Gamma_h, rows cap_ptr[v]..cap_ptr[v
+   + 1] of cap_w and cap_len2, beyond its cap); the first within tie of the best moves its
+   vertex if it beats q0 by more than tie. Returns the number of moves, -1 for more than 64
+   candidates. */
+int64_t dvr_slides(double *y, double *X, double *Y, double *Z, const int64_t *pv,
+                   const int64_t *f0, const int64_t *f1, const int64_t *f2,
+                   const int64_t *cell_idx, const int64_t *csub, const uint8_t *flat,
+                   double *rcell, const int64_t *vfirst, const int64_t *vcount,
+                   double *nrm, double *step, const double *hmin, const double *hmax,
+                   const int64_t *cap_ptr, const int64_t *cap_w, const double *cap_len2,
+                   const int64_t *G, int64_t nG, const double *q0, const double *pp,
+                   const double *pn, const double *tg, int64_t ns, double k15, double tie,
+                   double *w, int64_t stride, uint8_t *again)
+{
+    double qc[64], rmin[64], rnew[stride > 0 ? stride : 1];
+    if (ns > 64)
+        return -1;
+    int64_t moves = 0;
+    for (int64_t g = 0; g < nG; ++g)
+    {
+        int64_t v = G[g], e0 = vfirst[v], ne = vcount[v], p = pv[e0];
+        const double *cand = pp + 3 * ns * g;
+        for (int64_t j = 0; j < ne; ++j)
+        {
+            star_terms(y, p, f0[e0 + j], f1[e0 + j], f2[e0 + j], k15, w + j, stride);
+            w[j] = y[3 * p] - w[j]; /* the facet's centroid g = p - u */
+            w[stride + j] = y[3 * p + 1] - w[stride + j];
+            w[2 * stride + j] = y[3 * p + 2] - w[2 * stride + j];
+        }
+        double qmax = -INFINITY;
+        int64_t jw = 0;
+        for (int64_t c = 0; c < ns; ++c)
+        {
+            double m = INFINITY, out = below(qmax, tie);
+            for (int64_t i = 0, j0 = jw; i < ne && m >= out; ++i)
+            {
+                int64_t j = i == 0 ? j0 : i == j0 ? 0 : i;
+                double qx = cand[3 * c] - w[j], qy = cand[3 * c + 1] - w[stride + j];
+                double qz = cand[3 * c + 2] - w[2 * stride + j];
+                double s = qx * w[3 * stride + j];
+                s += qy * w[4 * stride + j];
+                s += qz * w[5 * stride + j];
+                double L = qx * qx;
+                L += qy * qy;
+                L += qz * qz;
+                L += w[6 * stride + j];
+                double r = flat[e0 + j] ? -1.0 : rating(s, L);
+                if (r < m)
+                {
+                    m = r;
+                    jw = j;
+                }
+            }
+            if (m < out)
+            {
+                qc[c] = -INFINITY;
+                continue;
+            }
+            rmin[c] = m;
+            for (int64_t k = cap_ptr[v]; k < cap_ptr[v + 1]; ++k)
+            {
+                const double *pu = y + 3 * cap_w[k];
+                double ex = cand[3 * c] - pu[0], ey = cand[3 * c + 1] - pu[1];
+                double ez = cand[3 * c + 2] - pu[2];
+                if (ex * ex + ey * ey + ez * ez > cap_len2[k])
+                    rmin[c] = -1.0;
+            }
+            qc[c] = rating_quality(rmin[c]);
+            qmax = qc[c] > qmax ? qc[c] : qmax;
+        }
+        int64_t b = first_best(qc, ns, tie);
+        if (!(qc[b] > q0[g] + tie))
+            continue;
+        const double *pos = cand + 3 * b;
+        for (int64_t j = 0; j < ne; ++j)
+        {
+            double qx = pos[0] - w[j], qy = pos[1] - w[stride + j], qz = pos[2] - w[2 * stride + j];
+            double s = qx * w[3 * stride + j];
+            s += qy * w[4 * stride + j];
+            s += qz * w[5 * stride + j];
+            double L = qx * qx;
+            L += qy * qy;
+            L += qz * qz;
+            L += w[6 * stride + j];
+            rnew[j] = flat[e0 + j] ? -1.0 : rating(s, L);
+        }
+        nrm[3 * p] = pn[3 * (ns * g + b)];
+        nrm[3 * p + 1] = pn[3 * (ns * g + b) + 1];
+        nrm[3 * p + 2] = pn[3 * (ns * g + b) + 2];
+        dvr_move(y, X, Y, Z, p, pos, cell_idx, csub, e0, ne, rnew, rcell, again, step + v,
+                 hmin[v], hmax[v], tg[ns * g + b]);
+        ++moves;
+    }
+    return moves;
+}
+
+/* The colours of the movable vertices and their star entries (_dvr.vertex_colours_graph
+   and _dvr._TetStars on one rank). csub (k, 4): the cells' corners in the numbering of the
+   m movable vertices, -1 for the others; order: the vertices by decreasing priority.
+   The Jones-Plassmann rounds: a vertex's round is one more than the latest of its
+   neighbours of higher priority (0 without), and it takes the lowest colour that no
+   neighbour of an earlier round has (neighbours of one round never share a colour: one of
+   each pair has the higher priority). Then the entries (cell, corner) sorted by colour,
+   vertex and cell into ecell, ecorner (n = the corners >= 0), and for each cell the entry
+   of its first such corner in cfirst (filled with -1 by the caller: -1 stays at cells
+   without one). vptr (m + 1), vcell (n), nptr (m + 1), nbr (3 n),
+   rnd (m), byrnd (m), tmp (m + 1) are scratch. Returns the number of colours, -1 for more
+   than 62. */
+int64_t dvr_colour(const int64_t *csub, int64_t k, int64_t m, const double *priority,
+                   const int64_t *order, int64_t *colour, int64_t *vptr, int64_t *vcell,
+                   int64_t *nptr, int64_t *nbr, int64_t *rnd, int64_t *byrnd, int64_t *tmp,
+                   int64_t *ecell, int64_t *ecorner, int64_t *cfirst)
+{
+    for (int64_t v = 0; v <= m; ++v)
+        vptr[v] = 0;
+    for (int64_t i = 0; i < 4 * k; ++i)
+        if (csub[i] >= 0)
+            ++vptr[csub[i] + 1];
+    for (int64_t v = 0; v < m; ++v)
+        vptr[v + 1] += vptr[v];
+    for (int64_t v = 0; v < m; ++v) /* each vertex's corners 4 c + j, ascending (rnd: next) */
+        rnd[v] = vptr[v];
+    for (int64_t i = 0; i < 4 * k; ++i)
+    {
+        int64_t v = csub[i];
+        if (v >= 0)
+            vcell[rnd[v]++] = i;
+        if (v >= 0 && cfirst[i / 4] == -1)
+            cfirst[i / 4] = -2 - (i % 4); /* the cell's first corner j, as -2 - j */
+    }
+    /* each vertex's distinct neighbours (tmp: the last vertex that listed each), compact:
+       the passes in priority order below read them from cache */
+    nptr[0] = 0;
+    for (int64_t v = 0; v < m; ++v)
+        tmp[v] = -1;
+    for (int64_t v = 0; v < m; ++v)
+    {
+        int64_t cnt = nptr[v];
+        for (int64_t e = vptr[v]; e < vptr[v + 1]; ++e)
+            for (int j = 0; j < 4; ++j)
+            {
+                int64_t u = csub[vcell[e] - vcell[e] % 4 + j];
+                if (u >= 0 && u != v && tmp[u] != v)
+                {
+                    tmp[u] = v;
+                    nbr[cnt++] = u;
+                }
+            }
+        nptr[v + 1] = cnt;
+    }
+    int64_t nrounds = 0;
+    for (int64_t i = 0; i < m; ++i) /* rounds, by decreasing priority */
+    {
+        int64_t v = order[i], r = 0;
+        double pv = priority[v];
+        for (int64_t e = nptr[v]; e < nptr[v + 1]; ++e)
+        {
+            int64_t u = nbr[e];
+            if (priority[u] > pv && rnd[u] + 1 > r)
+                r = rnd[u] + 1;
+        }
+        rnd[v] = r;
+        nrounds = r + 1 > nrounds ? r + 1 : nrounds;
+    }
+    /* the vertices by round (counting sort), then first fit */
+    int64_t ncol = 0;
+    for (int64_t r = 0; r <= nrounds; ++r)
+        tmp[r] = 0;
+    for (int64_t v = 0; v < m; ++v)
+        ++tmp[rnd[v] + 1];
+    for (int64_t r = 0; r < nrounds; ++r)
+        tmp[r + 1] += tmp[r];
+    for (int64_t v = 0; v < m; ++v)
+        byrnd[tmp[rnd[v]]++] = v;
+    for (int64_t i = 0; i < m; ++i)
+    {
+        int64_t v = byrnd[i];
+        uint64_t used = 0;
+        for (int64_t e = nptr[v]; e < nptr[v + 1]; ++e)
+        {
+            int64_t u = nbr[e];
+            if (rnd[u] < rnd[v])
+                used |= (uint64_t)1 << colour[u];
+        }
+        int64_t c = 0;
+        while (c < 62 && (used >> c) & 1)
+            ++c;
+        if (c >= 62)
+            return -1;
+        colour[v] = c;
+        ncol = c + 1 > ncol ? c + 1 : ncol;
+    }
+    /* the entries by colour, vertex, cell */
+    int64_t *cstart = tmp; /* the vertices by colour */
+    for (int64_t c = 0; c <= ncol; ++c)
+        cstart[c] = 0;
+    for (int64_t v = 0; v < m; ++v)
+        ++cstart[colour[v] + 1];
+    for (int64_t c = 0; c < ncol; ++c)
+        cstart[c + 1] += cstart[c];
+    for (int64_t v = 0; v < m; ++v)
+        byrnd[cstart[colour[v]]++] = v;
+    int64_t n = 0;
+    for (int64_t i = 0; i < m; ++i)
+    {
+        int64_t v = byrnd[i];
+        for (int64_t e = vptr[v]; e < vptr[v + 1]; ++e)
+        {
+            int64_t c = vcell[e] / 4, j = vcell[e] % 4;
+            ecell[n] = c;
+            ecorner[n] = j;
+            if (cfirst[c] == -2 - j)
+                cfirst[c] = n;
+            ++n;
+        }
+    }
+    return ncol;
+}
+
+/* The orientation of the k cells from the entries first[0..nf) (one per cell; _dvr.
+   _TetStars._orient): the sign of s of its star terms. The entries e < ne of negatively
+   oriented cells swap f1 and f2, those of flat ones (sign 0) are marked in flat; each cell
+   is rated from its first entry (turned where s < 0) into rcell. */
+void dvr_orient(const double *y, const int64_t *pv, const int64_t *f0, int64_t *f1,
+                int64_t *f2, const int64_t *cell_idx, const int64_t *first, int64_t nf,
+                int64_t ne, int64_t k, double k15, uint8_t *flat, double *rcell)
+{
+    double t[9];
+    double *orient = (double *)calloc(k > 0 ? k : 1, sizeof(double));
+    if (!orient)
+        return;
+    for (int64_t i = 0; i < nf; ++i)
+    {
+        int64_t e = first[i];
+        star_terms(y, pv[e], f0[e], f1[e], f2[e], k15, t, 1);
+        double s = t[7];
+        orient[cell_idx[e]] = s > 0.0 ? 1.0 : s < 0.0 ? -1.0 : s == 0.0 ? 0.0 : NAN;
+    }
+    for (int64_t e = 0; e < ne; ++e)
+    {
+        double o = orient[cell_idx[e]];
+        if (o < 0.0)
+        {
+            int64_t a = f1[e];
+            f1[e] = f2[e];
+            f2[e] = a;
+        }
+        flat[e] = o == 0.0;
+    }
+    for (int64_t i = 0; i < nf; ++i)
+    {
+        int64_t e = first[i];
+        star_terms(y, pv[e], f0[e], f1[e], f2[e], k15, t, 1);
+        rcell[cell_idx[e]] = flat[e] ? -1.0 : rating(t[7], t[8]);
+    }
+    free(orient);
 }
 """
 

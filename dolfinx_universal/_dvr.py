@@ -29,6 +29,15 @@ The quality of every tetrahedron is kept (one value per cell, rated once at the 
 set by the move that changes it, from the winning candidate's ratings of the mover's star
 (no two corners of a tetrahedron move together): finding a vertex's worst tetrahedron
 re-rates nothing, only the stars of the vertices worked on are rated, once per visit.
+Tetrahedra are rated by the cube of their quality (:func:`rating`, ``s^2 / L^3``: no root),
+and the cube root (:func:`cube_root`, the same on every machine) is taken once per star and
+candidate.
+
+On one rank the visits, the colouring and the set-up of the stars run as C kernels
+(:mod:`_compiled`: ``dvr_colour``, ``dvr_orient``, ``dvr_visit``, ``dvr_slides``) that
+evaluate this module's floating-point operations in its order, so that they move the
+vertices bitwise as the numpy code does; the numpy code is the reference, the fallback and
+the path on several ranks.
 
 Rank independence: every decision is taken on values reduced over the ranks (minimum
 qualities; the direction's sum, whose rounding may differ between partitions by a few
@@ -37,14 +46,16 @@ ulps, far below the tie tolerance), as in 2D.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from mpi4py import MPI
 
 import numpy as np
 
 from . import _tetrahedron as tet
+from ._compiled import pointer, relax_kernels
 from ._geometry import Bool, Float, Int
 from .relax import (
     GAMMA_EDGE_MAX,
@@ -78,6 +89,8 @@ quality then halves the relaxation's time on the moving ball and torus of
 ``benchmarks/curved_floor_3d.py`` (302 -> 154 and 248 -> 95 ms) but leaves their smallest
 dihedral angles at 27.4 and 25.5 degrees instead of 34.8 and 32.8: the worst tetrahedra
 need their neighbours' stars relaxed too."""
+_ACTIVE_RATING = ACTIVE_BELOW**3
+"""The rating (:func:`rating`) of the quality :data:`ACTIVE_BELOW`."""
 NEAR_WORST = 0.02
 """Tetrahedra within this quality of the star's worst one shape the direction. Measured on
 the six lattice/surface cases of ``tests/test_conform_3d.py`` (h = 0.25): 0.05 and 0.15
@@ -156,8 +169,8 @@ def vertex_colours_graph(sub: _Sub, cells: Int, priority: Float) -> Int:
     return colour
 
 
-def line_quality(s: Float, L: Float, sig: Float, beta2: Float, t: Float) -> Float:
-    """:func:`_tetrahedron.star_quality` of star entries at ``p + t d`` (``|d| = 1``).
+def line_rating(s: Float, L: Float, sig: Float, beta2: Float, t: Float) -> Float:
+    """:func:`rating` of star entries at ``p + t d`` (``|d| = 1``).
 
     With ``u = p - g`` and ``n`` of :func:`_tetrahedron.star_faces` at ``t = 0``:
     ``s = u . n``, ``L = |u|^2 + lsq``, ``sig = d . n`` and ``beta2 = 2 d . u``; then
@@ -166,13 +179,74 @@ def line_quality(s: Float, L: Float, sig: Float, beta2: Float, t: Float) -> Floa
     """
     st = t * sig
     st += s
-    q = np.cbrt(st)
-    q *= q
     den = beta2 + t
     den *= t
     den += L
-    q /= den
-    q[st <= 0.0] = -1.0
+    return _rating(st, den)
+
+
+def _rating(s: Float, L: Float) -> Float:
+    """``s^2 / L^3`` where ``s > 0`` (and the quotient positive), -1 elsewhere; ``L`` is
+    overwritten."""
+    r = L * L
+    r *= L
+    np.divide(s * s, r, out=r)
+    r[~((s > 0.0) & (r > 0.0))] = -1.0
+    return r
+
+
+def rating(s: Float, L: Float) -> Float:
+    """The relaxation's rating of star entries: the cube of the quality, ``s^2 / L^3``.
+
+    The quality of :func:`_tetrahedron.star_quality` is ``cbrt(s)^2 / L``; its cube is an
+    increasing function of it with neither a cube root nor a square root, so the worst
+    tetrahedron of a star, or of a candidate, is found on ratings, and a cube root
+    (:func:`rating_quality`) is taken once per star and candidate instead of once per
+    tetrahedron and candidate (about 20 times fewer). -1 where ``s <= 0`` (not positively
+    oriented). ``s`` scales like ``h^3`` and ``L`` like ``h^2``: no overflow or underflow
+    for cells from 1e-50 to 1e50 in size.
+    """
+    return _rating(s, np.array(L, dtype=np.float64))
+
+
+_MAGIC = np.uint64(0x2A9F7893782DA1CE)
+_SCALE_UP, _SCALE_DOWN = 2.0**54, 2.0**-18
+
+
+def cube_root(x: Float) -> Float:
+    """Cube roots of positive finite ``x``, from IEEE operations only (a few ulps).
+
+    numpy's ``cbrt`` differs between CPUs (a vectorised one where the CPU has AVX-512,
+    the C library's elsewhere), and so would the relaxation's decisions at near ties. This
+    one is the same on every machine, and the C kernels (:mod:`_compiled`) evaluate the same
+    operations: an estimate from the exponent's bits divided by 3 (relative error below
+    7 %), then three Halley steps ``t ((t^3 + 2x) / (2 t^3 + x))`` (cubic convergence: below
+    1e-15 before rounding). Subnormal ``x`` is scaled by ``2^54`` first.
+    """
+    xs = np.array(x, dtype=np.float64)  # a copy
+    small = np.flatnonzero(xs < _TINY)
+    xs[small] *= _SCALE_UP
+    t = (xs.view(np.uint64) // np.uint64(3) + _MAGIC).view(np.float64)
+    x2 = xs + xs
+    for _ in range(3):
+        t3 = t * t
+        t3 *= t
+        num = t3 + x2
+        t3 += t3
+        t3 += xs
+        num /= t3
+        t *= num
+    t[small] *= _SCALE_DOWN
+    return t
+
+
+def rating_quality(r: Float) -> Float:
+    """The quality ``cbrt(r)`` of ratings ``r`` of :func:`rating` (-1 where ``r <= 0``, inf
+    where ``r`` is)."""
+    r = np.asarray(r, dtype=np.float64)
+    q = np.where(r == np.inf, np.inf, -1.0)  # inf: no entries (a fill value)
+    pos = (r > 0.0) & (r < np.inf)
+    q[pos] = cube_root(r[pos])
     return q
 
 
@@ -234,6 +308,46 @@ def star_terms(
     return (ux, uy, uz), (nx, ny, nz), lsq, s, L
 
 
+def _compiled_colours(kernels: Any, csub: Int, priority: Float) -> tuple[Int, tuple]:
+    """:func:`vertex_colours_graph` on one rank, and the star entries of :class:`_TetStars`
+    sorted by colour, vertex and cell (``dvr_colour``: the same colours and order, from
+    counting sorts instead of the pairs' sort and the entries' ``argsort``)."""
+    ffi = kernels.ffi
+    m, k = len(priority), len(csub)
+    csub = np.ascontiguousarray(csub, dtype=np.int64)
+    n = int(np.count_nonzero(csub >= 0))
+    order = np.argsort(-priority).astype(np.int64)
+    colour = np.empty(m, dtype=np.int64)
+    ecell, ecorner = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+    cfirst = np.full(k, -1, dtype=np.int64)
+    scratch = [np.empty(size, dtype=np.int64) for size in (m + 1, n, m + 1, 3 * n, m, m, m + 1)]
+    ncol = kernels.lib.dvr_colour(
+        pointer(ffi, csub, "int64_t"), k, m,
+        pointer(ffi, np.ascontiguousarray(priority, dtype=np.float64), "double"),
+        pointer(ffi, order, "int64_t"), pointer(ffi, colour, "int64_t"),
+        *(pointer(ffi, a, "int64_t") for a in scratch), pointer(ffi, ecell, "int64_t"),
+        pointer(ffi, ecorner, "int64_t"), pointer(ffi, cfirst, "int64_t"),
+    )  # fmt: skip
+    if ncol < 0:
+        raise RuntimeError(f"vertex colouring: more than {_MAX_COLOURS} colours needed")
+    return colour, (ecell, ecorner, cfirst[cfirst >= 0])
+
+
+def _compass_directions(turn: int, frame: RelaxFrame | None) -> Float:
+    """The :data:`COMPASS` directions of a visit (:func:`_tetrahedron.directions`), in
+    world coordinates (C-contiguous); cached without a frame."""
+    if frame is not None:
+        return np.ascontiguousarray(frame.directions(tet.directions(COMPASS, turn)))
+    return _world_directions(turn)
+
+
+@functools.lru_cache(maxsize=1024)
+def _world_directions(turn: int) -> Float:
+    d = np.ascontiguousarray(tet.directions(COMPASS, turn), dtype=np.float64)
+    d.flags.writeable = False
+    return d
+
+
 def _segment_min(v: Float, starts: Int) -> Float:
     """Minimum of each segment of the last axis."""
     return np.minimum.reduceat(v, starts, axis=-1) if len(starts) else v[..., :0]
@@ -265,9 +379,14 @@ def relax_tetrahedra(
     local = np.full(len(y), -1, dtype=np.int64)
     local[verts] = np.arange(m)
     csub = local[cells]
-    colour = vertex_colours_graph(sub, csub, vertex_priority(x0[verts], frame))
+    priority = vertex_priority(x0[verts], frame)
+    kernels = relax_kernels() if sub.map is None else None  # one rank: the C kernels
+    if kernels is None:
+        colour, entries = vertex_colours_graph(sub, csub, priority), None
+    else:
+        colour, entries = _compiled_colours(kernels, csub, priority)
     ncol = comm.allreduce(int(colour.max(initial=-1)) + 1, op=MPI.MAX)
-    stars = _TetStars(y, cells, csub, colour, ncol, verts, on_gamma, h)
+    stars = _TetStars(y, cells, csub, colour, ncol, verts, on_gamma, h, kernels, entries)
     ev, cell_idx = stars.ev, stars.cell_idx
     bounds = np.searchsorted(colour[ev], np.arange(ncol + 1))
     groups = [np.flatnonzero(colour == k) for k in range(ncol)]
@@ -287,12 +406,16 @@ def relax_tetrahedra(
             if not comm.allreduce(len(S) > 0, op=MPI.LOR):
                 continue
             lo, hi = bounds[k], bounds[k + 1]
+            if kernels is not None:  # (again: set at the movers and their neighbours)
+                moves += search.visit_compiled(S, sweep * ncol + k, again)
+                continue
             E = lo + np.flatnonzero(todo[ev[lo:hi]])
             win = search.visit(S, E, sweep * ncol + k, changed)
             again[win] = True
             moves += int(np.count_nonzero(win < sub.size_local))
         # The neighbours of the vertices moved in this sweep are worked on again.
-        again[ev[changed[cell_idx]]] = True
+        if kernels is None:
+            again[ev[changed[cell_idx]]] = True
         todo = again
         done = sweep + 1
         moves = comm.allreduce(moves, op=MPI.SUM)
@@ -314,10 +437,12 @@ class _TetStars:
     ``(a, b, c)`` ordered so that ``(p, a, b, c)`` is positively oriented while ``p`` stays
     on the cell's side, sorted by colour and vertex: each colour is a slice, each vertex a
     segment of it. Degenerate tetrahedra (no orientation to keep) rate -1. The quality of
-    each tetrahedron (:attr:`qcell`) is rated once here (from one of its entries), then set
-    by the move that changes it. Edges of Gamma_h (both ends on Gamma) may not grow beyond
-    :data:`relax.GAMMA_EDGE_MAX` ``h`` (or their length after ``M_h``, if longer): one row
-    per (vertex on Gamma, neighbour on Gamma), sorted by the vertex.
+    each tetrahedron (:attr:`rcell`, its :func:`rating`) is computed once here (from one of
+    its entries), then set by the move that changes it. Edges of Gamma_h (both ends on
+    Gamma) may not grow beyond :data:`relax.GAMMA_EDGE_MAX` ``h`` (or their length after
+    ``M_h``, if longer): one row per (vertex on Gamma, neighbour on Gamma), sorted by the
+    vertex. On one rank with the C kernels (``kernels``), ``entries`` are the sorted entries
+    of :func:`_compiled_colours`.
     """
 
     def __init__(
@@ -330,37 +455,37 @@ class _TetStars:
         verts: Int,
         on_gamma: Bool,
         h: Float,
+        kernels: Any = None,
+        entries: tuple | None = None,
     ) -> None:
         m = len(verts)
         self.y = y  # the relaxation's current positions (moves write into it)
-        cell_idx, corner = np.nonzero(csub >= 0)  # sorted by cell
-        ev = csub[cell_idx, corner]
-        key = colour[ev] * max(m, 1) + ev
-        if (ncol + 1) * max(m, 1) * max(len(cells), 1) < 2**62:  # unique keys: a faster sort
-            order = np.argsort(key * len(cells) + cell_idx)
-        else:
-            order = np.argsort(key, kind="stable")
-        inv = np.empty_like(order)
-        inv[order] = np.arange(len(order))
-        first = inv[np.flatnonzero(np.diff(cell_idx, prepend=-1))]  # an entry of each cell
-        cell_idx, corner, ev = cell_idx[order], corner[order], ev[order]
+        if entries is None:
+            cell_idx, corner = np.nonzero(csub >= 0)  # sorted by cell
+            ev = csub[cell_idx, corner]
+            key = colour[ev] * max(m, 1) + ev
+            if (ncol + 1) * max(m, 1) * max(len(cells), 1) < 2**62:  # unique keys: faster
+                order = np.argsort(key * len(cells) + cell_idx)
+            else:
+                order = np.argsort(key, kind="stable")
+            inv = np.empty_like(order)
+            inv[order] = np.arange(len(order))
+            first = inv[np.flatnonzero(np.diff(cell_idx, prepend=-1))]  # its first corner's
+            cell_idx, corner, ev = cell_idx[order], corner[order], ev[order]
+        else:  # sorted by _compiled_colours
+            cell_idx, corner, first = entries
+            ev = csub[cell_idx, corner]
         # The facet opposite each entry's vertex, by flat index (no (cells, 4, 3) copy).
-        flat_cells = np.ascontiguousarray(cells).reshape(-1)
+        flat_cells = np.ascontiguousarray(cells, dtype=np.int64).reshape(-1)
         base = 4 * cell_idx
         f0, f1, f2 = (flat_cells[base + tet.FACETS[:, i][corner]] for i in range(3))
-        self.pv = verts[ev]
+        self.pv = verts[ev].astype(np.int64)
         self.yc = (y[:, 0].copy(), y[:, 1].copy(), y[:, 2].copy())  # y's coordinates
-        # The orientation of each cell from one entry's 6 V (the sign of s); the entries of
-        # negatively oriented cells take their facet the other way round.
-        _, _, _, s, L = star_terms(self.yc, self.pv[first], f0[first], f1[first], f2[first])
-        orient = np.zeros(len(cells))
-        orient[cell_idx[first]] = np.sign(s)
-        eo = orient[cell_idx]
-        neg = np.flatnonzero(eo < 0)
-        f1[neg], f2[neg] = f2[neg], f1[neg]
         self.f0, self.f1, self.f2 = f0, f1, f2
-        self.flat = eo == 0  # no orientation to keep: rated -1 whatever the position
         self.cell_idx, self.ev = cell_idx, ev
+        self.rcell = np.full(len(cells), -1.0)
+        self.kernels = kernels
+        self._orient(first, len(cells))
         # The caps of the edges of Gamma_h: entries at a vertex on Gamma, facet corners on it.
         g = np.flatnonzero(on_gamma[self.pv])
         gv = np.concatenate([ev[g]] * 3)
@@ -373,12 +498,73 @@ class _TetStars:
         hmax_e = np.maximum(h[verts[self.cap_v]], h[self.cap_w])
         self.cap_len2 = (np.maximum(GAMMA_EDGE_MAX * hmax_e, length) * (1.0 + TIE)) ** 2
         self.cap_ptr = np.searchsorted(self.cap_v, np.arange(m + 1))  # each vertex's rows
-        self.qcell = np.full(len(cells), -1.0)
+        if self.kernels is not None:
+            self._bind(self.kernels.ffi, m, csub)
+
+    def _orient(self, first: Int, k: int) -> None:
+        """The orientation of each cell from one entry's 6 V, the sign of ``s`` (entries
+        ``first``, one per cell): the entries of negatively oriented cells take their facet
+        the other way round, those of flat ones are marked :attr:`flat`; and the cells'
+        ratings (:attr:`rcell`)."""
+        f0, f1, f2, cell_idx = self.f0, self.f1, self.f2, self.cell_idx
+        if self.kernels is not None:  # dvr_orient: the same operations
+            ffi = self.kernels.ffi
+            self.flat = np.empty(len(cell_idx), dtype=bool)
+            self.kernels.lib.dvr_orient(
+                pointer(ffi, self.y, "double"), pointer(ffi, self.pv, "int64_t"),
+                pointer(ffi, f0, "int64_t"), pointer(ffi, f1, "int64_t"),
+                pointer(ffi, f2, "int64_t"), pointer(ffi, cell_idx, "int64_t"),
+                pointer(ffi, np.ascontiguousarray(first, dtype=np.int64), "int64_t"),
+                len(first), len(cell_idx), k, _K15,
+                pointer(ffi, self.flat.view(np.uint8), "uint8_t"),
+                pointer(ffi, self.rcell, "double"),
+            )  # fmt: skip
+            return
+        _, _, _, s, L = star_terms(self.yc, self.pv[first], f0[first], f1[first], f2[first])
+        orient = np.zeros(k)
+        orient[cell_idx[first]] = np.sign(s)
+        eo = orient[cell_idx]
+        neg = np.flatnonzero(eo < 0)
+        f1[neg], f2[neg] = f2[neg], f1[neg]
+        self.flat = eo == 0  # no orientation to keep: rated -1 whatever the position
         turned = np.flatnonzero(s < 0.0)  # rated again, their facets turned
         if len(turned):
             _, _, _, s[turned], L[turned] = self.terms(first[turned])
-        r = np.cbrt(s)
-        self.qcell[cell_idx[first]] = np.where((s > 0.0) & ~self.flat[first], r * r / L, -1.0)
+        r = rating(s, L)
+        r[self.flat[first]] = -1.0
+        self.rcell[cell_idx[first]] = r
+
+    def _bind(self, ffi: Any, m: int, csub: Int) -> None:
+        """The C kernels' arguments that stay the same (the arrays written in place: the
+        positions, the ratings)."""
+        i64 = np.int64
+        self.vfirst = np.zeros(m, dtype=i64)
+        starts = np.flatnonzero(np.diff(self.ev, prepend=-1))
+        self.vfirst[self.ev[starts]] = starts  # each vertex's entries are consecutive
+        self.vcount = np.bincount(self.ev, minlength=m).astype(i64)
+        self.stride = max(int(self.vcount.max(initial=0)), 1)
+        self.scratch = np.empty(9 * self.stride)
+        self._k = {
+            name: np.ascontiguousarray(a, dtype=i64)
+            for name, a in (("pv", self.pv), ("f0", self.f0), ("f1", self.f1), ("f2", self.f2),
+                            ("cell_idx", self.cell_idx), ("cap_ptr", self.cap_ptr),
+                            ("cap_w", self.cap_w), ("csub", csub))
+        }  # fmt: skip
+        self._k["flat"] = self.flat.view(np.uint8)
+        self._k["cap_len2"] = np.ascontiguousarray(self.cap_len2, dtype=np.float64)
+        types = {"flat": "uint8_t", "cap_len2": "double"}
+        self.p = {n: pointer(ffi, a, types.get(n, "int64_t")) for n, a in self._k.items()}
+        for name, a in (
+            ("y", self.y),
+            ("X", self.yc[0]),
+            ("Y", self.yc[1]),
+            ("Z", self.yc[2]),
+            ("rcell", self.rcell),
+            ("scratch", self.scratch),
+        ):
+            self.p[name] = pointer(ffi, a, "double")
+        self.p["vfirst"] = pointer(ffi, self.vfirst, "int64_t")
+        self.p["vcount"] = pointer(ffi, self.vcount, "int64_t")
 
     def terms(self, E: Int) -> tuple:
         """:func:`star_terms` of the entries ``E`` at the current positions."""
@@ -414,6 +600,8 @@ class _Directional:
         self.hmax = MAX_STEP * h[verts]
         self.hmin = MIN_STEP * h[verts]
         self.rowof = np.zeros(len(verts), dtype=np.int64)  # scratch: the row of each vertex
+        self._c: dict[str, np.ndarray] = {}  # the compiled visit's buffers
+        self._cp: dict[str, Any] = {}
 
     def _rows(self, S: Int, at: Int | slice, vals: Float, op: str, fill: float = np.inf) -> Float:
         """Per-vertex values ``vals`` at rows ``at`` of ``S`` (``fill`` elsewhere), reduced
@@ -432,14 +620,14 @@ class _Directional:
         self.rowof[S] = np.arange(len(S))
         rE = self.rowof[vE]
         starts = np.flatnonzero(np.diff(rE, prepend=-1))
-        qE = st.qcell[cell_idx[E]]
-        qv = self._rows(S, rE[starts], _segment_min(qE, starts), "min")
-        work = (qv < ACTIVE_BELOW) & (qv > -1.0)
+        rE_ = st.rcell[cell_idx[E]]
+        rv = self._rows(S, rE[starts], _segment_min(rE_, starts), "min")
+        work = (rv < _ACTIVE_RATING) & (rv > 0.0)
         # Only the vertices to work on and their entries, from here (rows renumbered).
         keep = work[rE]
-        E, S, q0 = E[keep], S[work], qv[work]
+        E, S, q0 = E[keep], S[work], rating_quality(rv[work])
         rE = (np.cumsum(work) - 1)[rE[keep]]
-        v = _Visit(S, E, q0, vE[keep], rE, st.terms(E), qE[keep])
+        v = _Visit(S, E, q0, vE[keep], rE, st.terms(E), rE_[keep])
         self._direction(v)
         self._line(v)
         stuck = ~v.gain & ~self.gamma_v[S]
@@ -450,15 +638,99 @@ class _Directional:
             self._slides(v, gi, turn)
         return self._apply(v, changed)
 
+    def visit_compiled(self, S: Int, turn: int, again: Bool) -> int:
+        """:meth:`visit` on one rank with the C kernels (``dvr_visit``, the projection of
+        the slides' candidates, ``dvr_slides``): the same moves, bitwise; ``again`` is set
+        at the vertices that moved and at their neighbours. Returns the number of moves."""
+        st = self.stars
+        assert st.kernels is not None
+        ffi, lib, p = st.kernels.ffi, st.kernels.lib, st.p
+        if not self._c:
+            self._bind(ffi)
+        c, cp = self._c, self._cp
+        ns = len(SLIDE_STEPS) + SLIDES
+        dirs = _compass_directions(turn, self.frame)
+        ag = pointer(ffi, again.view(np.uint8), "uint8_t")
+        if self.frame is None:  # the slides' candidates in C
+            theta = tet.tangent_angles(SLIDES, turn)
+            tcos, tsin = np.cos(theta), np.sin(theta)
+            gpc, gtg = cp["gpc"], cp["gtg"]
+        else:
+            tcos = tsin = np.zeros(0)
+            gpc = gtg = ffi.NULL
+        S = np.ascontiguousarray(S, dtype=np.int64)
+        nG = ffi.new("int64_t *")
+        moves = lib.dvr_visit(
+            p["y"], p["X"], p["Y"], p["Z"], p["pv"], p["f0"], p["f1"], p["f2"], p["cell_idx"],
+            p["csub"], p["rcell"], p["vfirst"], p["vcount"], cp["gamma"], cp["nrm"],
+            cp["step"], cp["hmin"], cp["hmax"], pointer(ffi, S, "int64_t"), len(S),
+            cp["line"], len(LINE_STEPS), pointer(ffi, dirs, "double"), len(dirs),
+            cp["csteps"], len(COMPASS_STEPS), cp["slides"], len(SLIDE_STEPS),
+            pointer(ffi, tcos, "double"), pointer(ffi, tsin, "double"), len(tcos), _K15, TIE,
+            NEAR_WORST, _ACTIVE_RATING, p["scratch"], st.stride, ag, cp["G"], cp["gdv"],
+            cp["gtb"], cp["gq0"], gpc, gtg, nG,
+        )  # fmt: skip
+        if moves < 0:
+            raise ValueError("dvr_visit: more than 64 candidates per vertex")
+        ng = int(nG[0])
+        if not ng:
+            return int(moves)
+        G = c["G"][:ng]
+        if self.frame is None:
+            pc = c["gpc"][:ng]
+            pp, pn = collective_call(
+                self.comm, "projection onto Gamma", self.onto_gamma, pc.reshape(-1, 3)
+            )
+            tg = c["gtg"][:ng]
+        else:
+            pp, pn, tg = self.slide_candidates(G, c["gdv"][:ng], c["gtb"][:ng], turn)
+        pp, pn, tg = (np.ascontiguousarray(a, dtype=np.float64) for a in (pp, pn, tg))
+        slid = lib.dvr_slides(
+            p["y"], p["X"], p["Y"], p["Z"], p["pv"], p["f0"], p["f1"], p["f2"], p["cell_idx"],
+            p["csub"], p["flat"], p["rcell"], p["vfirst"], p["vcount"], cp["nrm"],
+            cp["step"], cp["hmin"], cp["hmax"], p["cap_ptr"], p["cap_w"], p["cap_len2"],
+            cp["G"], ng, cp["gq0"], pointer(ffi, pp, "double"), pointer(ffi, pn, "double"),
+            pointer(ffi, tg, "double"), ns, _K15, TIE, p["scratch"], st.stride, ag,
+        )  # fmt: skip
+        if slid < 0:
+            raise ValueError("dvr_slides: more than 64 candidates per vertex")
+        return int(moves + slid)
+
+    def _bind(self, ffi: Any) -> None:
+        """The compiled visit's buffers (one row per movable vertex) and pointers."""
+        n, ns = len(self.step), len(SLIDE_STEPS) + SLIDES
+        self._c = {
+            "G": np.empty(n, dtype=np.int64),
+            "gdv": np.empty((n, 3)),
+            "gtb": np.empty(n),
+            "gq0": np.empty(n),
+            "gpc": np.empty((n, ns, 3)),
+            "gtg": np.empty((n, ns)),
+        }
+        self._cp = {name: pointer(ffi, a, "double") for name, a in self._c.items() if name != "G"}
+        self._cp["G"] = pointer(ffi, self._c["G"], "int64_t")
+        self._cp["gamma"] = pointer(ffi, self.gamma_v.view(np.uint8), "uint8_t")
+        for name in ("nrm", "step", "hmin", "hmax"):
+            self._cp[name] = pointer(ffi, getattr(self, name), "double")
+        for name, a in (("line", LINE_STEPS), ("csteps", COMPASS_STEPS), ("slides", SLIDE_STEPS)):
+            self._cp[name] = pointer(ffi, a, "double")
+
     def _direction(self, v: _Visit) -> None:
         """The ascent direction of each star: the near-worst entries' unit gradients,
         weighted, summed over the ranks; in the tangent plane for vertices on Gamma."""
         (ux, uy, uz), (nx, ny, nz), _, s, L = v.terms
-        q, rE, S = v.q, v.rE, v.S
-        q0E = v.q0[rE]
-        nw = np.flatnonzero(q < q0E + NEAR_WORST)
+        rE, S = v.rE, v.S
+        q = v.q0 + NEAR_WORST  # the ratings below q^3: qualities below q0 + NEAR_WORST
+        w = q * q
+        w *= q
+        nw = np.flatnonzero(v.r < w[rE])
         wg = ascent_gradients(
-            q[nw], q0E[nw], s[nw], L[nw], (ux[nw], uy[nw], uz[nw]), (nx[nw], ny[nw], nz[nw])
+            rating_quality(v.r[nw]),
+            v.q0[rE[nw]],
+            s[nw],
+            L[nw],
+            (ux[nw], uy[nw], uz[nw]),
+            (nx[nw], ny[nw], nz[nw]),
         )
         dv = np.empty((len(S), 3))
         for i, wgi in enumerate(wg):
@@ -467,7 +739,8 @@ class _Directional:
         gs = np.flatnonzero(self.gamma_v[S])
         if len(gs):  # in the tangent plane
             nn = self.nrm[self.sub.vertices[S[gs]]]
-            dv[gs] -= (dv[gs] * nn).sum(axis=1)[:, None] * nn
+            d = dv[gs, 0] * nn[:, 0] + dv[gs, 1] * nn[:, 1] + dv[gs, 2] * nn[:, 2]
+            dv[gs] -= d[:, None] * nn
         dvx, dvy, dvz = dv[:, 0], dv[:, 1], dv[:, 2]
         v.dn = np.sqrt(dvx * dvx + dvy * dvy + dvz * dvz)
         dv /= np.where(v.dn > 0.0, v.dn, 1.0)[:, None]
@@ -483,15 +756,15 @@ class _Directional:
         beta2 = dx * ux + dy * uy + dz * uz
         beta2 *= 2.0
         t = LINE_STEPS[:, None] * self.step[v.vE][None]  # (steps, entries)
-        qt = line_quality(s, L, sig, beta2, t)  # (caps: rated below, on Gamma)
-        qs = self._rows(S, rE[v.starts], _segment_min(qt, v.starts).T, "min")
+        rt = line_rating(s, L, sig, beta2, t)  # (caps: rated below, on Gamma)
+        qs = rating_quality(self._rows(S, rE[v.starts], _segment_min(rt, v.starts).T, "min"))
         best = np.argmax(qs >= qs.max(axis=1, initial=-np.inf)[:, None] - TIE, axis=1)
         v.qb = qs[np.arange(len(S)), best]
         v.tb = LINE_STEPS[best] * self.step[S]
         v.gain = (v.qb > v.q0 + TIE) & (v.dn > 0.0)
         v.new = self.stars.y[self.sub.vertices[S]] + v.tb[:, None] * dv
-        # The entries' qualities at each vertex's chosen candidate.
-        v.qnew = qt[best[rE], np.arange(len(v.E))]
+        # The entries' ratings at each vertex's chosen candidate.
+        v.rnew = rt[best[rE], np.arange(len(v.E))]
 
     def _compass(self, v: _Visit, stuck: Bool, turn: int) -> None:
         """Inside vertices stuck along their direction (a kink of three or more worst
@@ -499,18 +772,16 @@ class _Directional:
         (ux, uy, uz), (nx, ny, nz), _, s, L = v.terms
         rE, S = v.rE, v.S
         cs = np.flatnonzero(stuck[rE])
-        dirs = tet.directions(COMPASS, turn)
-        if self.frame is not None:
-            dirs = self.frame.directions(dirs)
+        dirs = _compass_directions(turn, self.frame)
         sx, sy, sz = (a[cs] for a in (ux, uy, uz))
         sig = dirs[:, 0, None] * nx[cs] + dirs[:, 1, None] * ny[cs] + dirs[:, 2, None] * nz[cs]
         beta2 = 2.0 * (dirs[:, 0, None] * sx + dirs[:, 1, None] * sy + dirs[:, 2, None] * sz)
         tc = COMPASS_STEPS[:, None, None] * self.step[v.vE[cs]][None, None]  # (ns, 1, n)
-        qc = line_quality(s[cs], L[cs], sig[None], beta2[None], tc)
+        qc = line_rating(s[cs], L[cs], sig[None], beta2[None], tc)
         qc = qc.reshape(COMPASS * len(COMPASS_STEPS), len(cs))  # (the same on all ranks)
         rc = rE[cs]
         sc = np.flatnonzero(np.diff(rc, prepend=-1))
-        qsc = self._rows(S, rc[sc], _segment_min(qc, sc).T, "min")
+        qsc = rating_quality(self._rows(S, rc[sc], _segment_min(qc, sc).T, "min"))
         bc = np.argmax(qsc >= qsc.max(axis=1, initial=-np.inf)[:, None] - TIE, axis=1)
         qbc = qsc[np.arange(len(S)), bc]
         take = stuck & (qbc > v.q0 + TIE)
@@ -521,19 +792,18 @@ class _Directional:
         v.tb[take] = tcb[take]
         v.qb[take] = qbc[take]
         tk = take[rc]
-        v.qnew[cs[tk]] = qc[bc[rc[tk]], np.flatnonzero(tk)]
+        v.rnew[cs[tk]] = qc[bc[rc[tk]], np.flatnonzero(tk)]
 
-    def _slides(self, v: _Visit, gi: Int, turn: int) -> None:
-        """Vertices on Gamma (rows ``gi`` of the visit): fractions of the best step and
-        :data:`SLIDES` tangent directions, projected onto Gamma and rated exactly; a slide
-        may not stretch an edge of Gamma_h beyond its cap."""
-        st = self.stars
-        (ux, uy, uz), (nx, ny, nz), lsq, _, _ = v.terms
-        verts, rE, S, E = self.sub.vertices, v.rE, v.S, v.E
-        G = S[gi]
-        yG = st.y[verts[G]]
-        tg = v.tb[gi, None] * SLIDE_STEPS[None]
-        pc = yG[:, None, :] + tg[..., None] * v.dv[gi][:, None, :]
+    def slide_candidates(self, G: Int, dv: Float, tb: Float, turn: int) -> tuple:
+        """The candidates of the vertices on Gamma ``G`` (rows of the movable vertices) with
+        directions ``dv`` and best steps ``tb`` along them: :data:`SLIDE_STEPS` of the step
+        along the direction and :data:`SLIDES` tangent directions at the vertex's step,
+        projected onto Gamma (collective). Returns the points and normals ``(len(G), ns,
+        3)`` and the steps ``(len(G), ns)``."""
+        verts = self.sub.vertices
+        yG = self.stars.y[verts[G]]
+        tg = tb[:, None] * SLIDE_STEPS[None]
+        pc = yG[:, None, :] + tg[..., None] * dv[:, None, :]
         if SLIDES:  # and a compass in the tangent plane at the current step
             if self.frame is None:
                 td = tet.tangent_directions(self.nrm[verts[G]], SLIDES, turn)
@@ -548,7 +818,18 @@ class _Directional:
         pp, pn = collective_call(
             self.comm, "projection onto Gamma", self.onto_gamma, pc.reshape(-1, 3)
         )
-        pp, pn = pp.reshape(len(G), ns, 3), pn.reshape(len(G), ns, 3)
+        return pp.reshape(len(G), ns, 3), pn.reshape(len(G), ns, 3), tg
+
+    def _slides(self, v: _Visit, gi: Int, turn: int) -> None:
+        """Vertices on Gamma (rows ``gi`` of the visit): the candidates of
+        :meth:`slide_candidates`, rated exactly; a slide may not stretch an edge of Gamma_h
+        beyond its cap."""
+        st = self.stars
+        (ux, uy, uz), (nx, ny, nz), lsq, _, _ = v.terms
+        rE, S, E = v.rE, v.S, v.E
+        G = S[gi]
+        pp, pn, tg = self.slide_candidates(G, v.dv[gi], v.tb[gi], turn)
+        ns = pp.shape[1]
         gpos = np.full(len(S), -1, dtype=np.int64)
         gpos[gi] = np.arange(len(G))
         eg = np.flatnonzero(gpos[rE] >= 0)
@@ -556,16 +837,27 @@ class _Directional:
         pcx, pcy, pcz = (np.ascontiguousarray(pp[..., i].T) for i in range(3))
         ip = st.pv[E[eg]]
         yc = st.yc
-        face = tet.StarFaces(
-            *(a[None] for a in (yc[0][ip] - ux[eg], yc[1][ip] - uy[eg], yc[2][ip] - uz[eg],
-                                nx[eg], ny[eg], nz[eg], lsq[eg]))
-        )  # fmt: skip
-        qg = tet.star_quality(pcx[:, rg], pcy[:, rg], pcz[:, rg], face)  # (ns, entries)
-        qg[:, st.flat[E[eg]]] = -1.0
-        sg = np.flatnonzero(np.diff(rg, prepend=-1))
-        qsg = np.full((len(G), ns), np.inf)
-        if len(sg):
-            qsg[rg[sg]] = _segment_min(qg, sg).T
+        # The entries' facets: centroid g = p - u, n and lsq (tet.star_faces), and the
+        # ratings of the candidates, laid out (ns, entries).
+        qx, qy, qz = pcx[:, rg], pcy[:, rg], pcz[:, rg]
+        qx -= yc[0][ip] - ux[eg]
+        qy -= yc[1][ip] - uy[eg]
+        qz -= yc[2][ip] - uz[eg]
+        sg = qx * nx[eg]
+        sg += qy * ny[eg]
+        sg += qz * nz[eg]
+        qx *= qx
+        qy *= qy
+        qx += qy
+        qz *= qz
+        qx += qz
+        qx += lsq[eg]
+        rg_ = _rating(sg, qx)  # (ns, entries)
+        rg_[:, st.flat[E[eg]]] = -1.0
+        seg = np.flatnonzero(np.diff(rg, prepend=-1))
+        rsg = np.full((len(G), ns), np.inf)
+        if len(seg):
+            rsg[rg[seg]] = _segment_min(rg_, seg).T
         # A slide may not stretch an edge of Gamma_h beyond its cap.
         cnt = st.cap_ptr[G + 1] - st.cap_ptr[G]
         cfirst = np.cumsum(cnt) - cnt
@@ -577,8 +869,8 @@ class _Directional:
         has = np.flatnonzero(cnt > 0)
         if len(has):
             over = np.logical_or.reduceat(long, cfirst[has], axis=1)
-            qsg[has] = np.where(over.T, -1.0, qsg[has])
-        qsg = self._rows(G, slice(None), qsg, "min")
+            rsg[has] = np.where(over.T, -1.0, rsg[has])
+        qsg = rating_quality(self._rows(G, slice(None), rsg, "min"))
         bg = np.argmax(qsg >= qsg.max(axis=1, initial=-np.inf)[:, None] - TIE, axis=1)
         rows = np.arange(len(G))
         v.qb[gi] = qsg[rows, bg]
@@ -586,8 +878,8 @@ class _Directional:
         v.new[gi] = pp[rows, bg]
         v.tb[gi] = tg[rows, bg]
         slid = v.gain[gi]
-        self.nrm[verts[G[slid]]] = pn[rows, bg][slid]
-        v.qnew[eg] = qg[bg[rg], np.arange(len(eg))]
+        self.nrm[self.sub.vertices[G[slid]]] = pn[rows, bg][slid]
+        v.rnew[eg] = rg_[bg[rg], np.arange(len(eg))]
 
     def _apply(self, v: _Visit, changed: Bool) -> Int:
         """Move the vertices that gain, set the qualities of their tetrahedra, and let the
@@ -598,7 +890,7 @@ class _Directional:
         for i in range(3):
             st.yc[i][verts[win]] = v.new[gain, i]
         moved_e = gain[v.rE]
-        st.qcell[st.cell_idx[v.E[moved_e]]] = v.qnew[moved_e]
+        st.rcell[st.cell_idx[v.E[moved_e]]] = v.rnew[moved_e]
         changed[st.cell_idx[v.E[moved_e]]] = True
         self.step[win] = np.clip(1.5 * np.abs(v.tb[gain]), self.hmin[win], self.hmax[win])
         return win
@@ -608,8 +900,8 @@ class _Visit:
     """The arrays of one visit of :class:`_Directional` (the vertices ``S`` worked on, their
     entries ``E``, rows, star terms, and the candidate chosen so far)."""
 
-    def __init__(self, S: Int, E: Int, q0: Float, vE: Int, rE: Int, terms: tuple, q: Float) -> None:
-        self.S, self.E, self.q0, self.terms, self.q = S, E, q0, terms, q
+    def __init__(self, S: Int, E: Int, q0: Float, vE: Int, rE: Int, terms: tuple, r: Float) -> None:
+        self.S, self.E, self.q0, self.terms, self.r = S, E, q0, terms, r
         self.vE, self.rE = vE, rE  # each entry's vertex, and its row in S
         self.starts = np.flatnonzero(np.diff(self.rE, prepend=-1))
         self.dv = np.zeros((len(S), 3))
@@ -618,4 +910,4 @@ class _Visit:
         self.tb = np.zeros(len(S))
         self.gain = np.zeros(len(S), dtype=bool)
         self.new = np.zeros((len(S), 3))
-        self.qnew = np.zeros(len(E))
+        self.rnew = np.zeros(len(E))  # the entries' ratings at the chosen candidate

@@ -55,6 +55,7 @@ __all__ = [
     "star_faces",
     "star_quality",
     "summary_and_volumes",
+    "tangent_angles",
     "tangent_directions",
 ]
 
@@ -573,5 +574,10 @@ def tangent_directions(normal: Float, n: int, sweep: int) -> Float:
     t1[rows, axis] += 1.0  # e - (e . n) n, |e . n| <= 1/sqrt(3)
     t1 /= np.sqrt(_sq(t1))[:, None]
     t2 = _cross(nrm, t1)
-    theta = sweep * _GOLDEN_ANGLE + 2.0 * np.pi * np.arange(n) / n
+    theta = tangent_angles(n, sweep)
     return np.cos(theta)[None, :, None] * t1[:, None] + np.sin(theta)[None, :, None] * t2[:, None]
+
+
+def tangent_angles(n: int, sweep: int) -> Float:
+    """The angles ``theta_j`` of :func:`tangent_directions` ``(n,)``."""
+    return sweep * _GOLDEN_ANGLE + 2.0 * np.pi * np.arange(n) / n

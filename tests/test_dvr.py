@@ -38,6 +38,46 @@ def _random_entries(rng, n):
     return p, a, b, c
 
 
+def test_cube_root_is_portable_and_accurate():
+    """The relaxation's cube root: within 4 ulps of numpy's over the whole positive range
+    (subnormals included), and computed from IEEE
+    operations only (checked here: the same bits as the recurrence in Python floats)."""
+    rng = np.random.default_rng(5)
+    x = np.concatenate(
+        [rng.uniform(0.0, 2.0, 20000), 10.0 ** rng.uniform(-323, 307, 20000), [5e-324, 1e-310]]
+    )
+    x = x[x > 0]
+    c = _dvr.cube_root(x)
+    assert np.all(np.abs(c - np.cbrt(x)) <= 4 * np.spacing(np.cbrt(x)))
+    # The same recurrence on Python floats (no numpy kernels): bitwise the same.
+    import struct
+
+    for xi, ci in zip(x[::997], c[::997], strict=True):
+        xs = xi * 2.0**54 if xi < np.finfo(float).tiny else xi
+        bits = struct.unpack("<Q", struct.pack("<d", xs))[0] // 3 + 0x2A9F7893782DA1CE
+        t = struct.unpack("<d", struct.pack("<Q", bits % 2**64))[0]
+        for _ in range(3):
+            t3 = t * t * t
+            t = t * ((t3 + (xs + xs)) / ((t3 + t3) + xs))
+        assert (t * 2.0**-18 if xi < np.finfo(float).tiny else t) == ci
+
+
+def test_ratings_order_as_qualities():
+    """The ratings ``s^2 / L^3`` (the cubes of the qualities) and their qualities
+    ``cbrt(r)`` are those of :func:`_tetrahedron.star_quality`, to rounding, -1 at the same
+    entries."""
+    rng = np.random.default_rng(12)
+    p, a, b, c = _random_entries(rng, 4000)
+    face = tet.star_faces(a, b, c)
+    _, s, L = _star_data(p, face)
+    r = _dvr.rating(s, L)
+    q = _dvr.rating_quality(r)
+    ref = tet.star_quality(p[:, 0], p[:, 1], p[:, 2], face)
+    valid = ref > -1
+    assert np.array_equal(r > 0, valid) and np.all(q[~valid] == -1.0) and valid.mean() > 0.3
+    assert np.all(np.abs(q[valid] - ref[valid]) <= 1e-14 * ref[valid])
+
+
 def test_line_quality_is_star_quality():
     """The closed form along ``p + t d`` equals the kernel evaluated at those points."""
     rng = np.random.default_rng(11)
@@ -50,7 +90,7 @@ def test_line_quality_is_star_quality():
     sig = d[:, 0] * face.nx + d[:, 1] * face.ny + d[:, 2] * face.nz
     beta2 = 2.0 * (d[:, 0] * u[0] + d[:, 1] * u[1] + d[:, 2] * u[2])
     t = np.array([0.0, 0.01, 0.1, 0.5, 1.0, 2.0, -0.3])[:, None] * np.ones(n)
-    q = _dvr.line_quality(s, L, sig, beta2, t)
+    q = _dvr.rating_quality(_dvr.line_rating(s, L, sig, beta2, t))
     x = p[None] + t[..., None] * d[None]
     ref = tet.star_quality(x[..., 0], x[..., 1], x[..., 2], tet.StarFaces(*(v[None] for v in face)))
     assert q.shape == ref.shape == (len(t), n)
@@ -261,3 +301,111 @@ def test_vertex_colours_graph():
         for j in range(i + 1, 4):
             both = (csub[:, i] >= 0) & (csub[:, j] >= 0)
             assert np.all(colour[csub[both, i]] != colour[csub[both, j]])
+
+
+def test_compiled_colours_and_entries_are_numpy_s():
+    """``dvr_colour`` gives the Jones-Plassmann colours of :func:`vertex_colours_graph`, and
+    the star entries, their facets, orientations and ratings of the numpy set-up, bitwise:
+    on perturbed A15 stars with turned (negatively oriented) cells, for two orders of the
+    (distinct) priorities."""
+    from dolfinx_universal._compiled import relax_kernels
+    from dolfinx_universal.relax import _Sub, coordinate_priority
+
+    kernels = relax_kernels()
+    assert kernels is not None  # DOLFINx's C compiler (FFCx's) builds them
+    x, y, cells, inner = _perturbed_a15(6, amplitude=0.3)
+    cells = cells.copy()
+    cells[::3] = cells[::3][:, [1, 0, 2, 3]]  # a third of the cells turned
+    local = np.full(len(x), -1, dtype=np.int64)
+    local[inner] = np.arange(int(inner.sum()))
+    csub = local[cells]
+    sub = _Sub(_SerialMap(), np.flatnonzero(inner))
+    for pr in (coordinate_priority(x[inner]), -coordinate_priority(x[inner])):
+        colour, entries = _dvr._compiled_colours(kernels, csub, pr)
+        ref = _dvr.vertex_colours_graph(sub, csub, pr)
+        np.testing.assert_array_equal(colour, ref)
+        ncol = int(colour.max()) + 1
+        verts, h = sub.vertices, np.ones(len(x))
+        on_gamma = np.abs(y[:, 2] - 1.5) < 0.3
+        a = _dvr._TetStars(y, cells, csub, colour, ncol, verts, on_gamma, h, kernels, entries)
+        b = _dvr._TetStars(y, cells, csub, colour, ncol, verts, on_gamma, h)
+        for name in ("cell_idx", "ev", "pv", "f0", "f1", "f2", "flat", "rcell", "cap_w"):
+            np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+        assert a.flat.any() is np.False_ and np.any(a.f1 != a.f0)
+
+
+@pytest.mark.parametrize("frame", [False, True])
+def test_compiled_relaxation_is_numpy_s(monkeypatch, frame):
+    """The C visits (``dvr_visit``, ``dvr_slides``: ascent directions, line searches,
+    compass, slides with capped edges of Gamma_h, early-out ratings) move the vertices
+    exactly as the numpy visits do, bitwise: inside vertices of perturbed A15 patches and
+    vertices sliding on a plane, with and without a turned frame."""
+    from dolfinx_universal._compiled import relax_kernels
+    from dolfinx_universal.relax import RelaxFrame
+
+    assert relax_kernels() is not None
+    angle = 0.4
+    c, s = np.cos(angle), np.sin(angle)
+    rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    fr = RelaxFrame(rot, np.array([0.1, 0.2, 0.3])) if frame else None
+
+    def runs():
+        out = []
+        for seed in (1, 2):
+            x, y, cells, inner = _perturbed_a15(seed, amplitude=0.3)
+            near = inner & (np.abs(y[:, 2] - 1.5) < 0.15)
+            y[near, 2] = 1.5
+            n = len(x)
+
+            def closest_normal(p):
+                q = p.copy()
+                q[:, 2] = 1.5
+                return q, np.tile([0.0, 0.0, 1.0], (len(p), 1))
+
+            r = _dvr.relax_tetrahedra(
+                MPI.COMM_SELF, _SerialMap(), closest_normal, x, x.copy(), y, cells, inner,
+                near, np.tile([0.0, 0.0, 1.0], (n, 1)), np.zeros(n), np.full(n, 0.5),
+                frame=fr,
+            )  # fmt: skip
+            assert r.num_moves > 0
+            out.append((r.y, r.x, r.num_moves, r.num_sweeps))
+        return out
+
+    compiled = runs()
+    monkeypatch.setenv("DOLFINX_UNIVERSAL_COMPILED", "0")
+    assert relax_kernels() is None
+    for a, b in zip(compiled, runs(), strict=True):
+        np.testing.assert_array_equal(a[0], b[0])
+        np.testing.assert_array_equal(a[1], b[1])
+        assert a[2:] == b[2:]
+
+
+def test_compiled_moving_tetrahedra_are_numpy_s(monkeypatch):
+    """Three steps of a moving ball and of a moving turned ellipsoid (the body's frame) on
+    one A15 background, q = 2: the same degree-2 geometry, bitwise, with the C kernels and
+    with the numpy code."""
+    import dolfinx_universal as du
+    from dolfinx_universal._compiled import relax_kernels
+
+    comm = MPI.COMM_SELF
+    bg = du.a15_mesh(comm, [[-1.2] * 3, [1.2] * 3], 0.16)
+    ell = du.Ellipsoid([0.0, 0.0, 0.0], [0.75, 0.5, 0.4])
+
+    def meshes():
+        out = []
+        md = du.MovingDomain(bg, degree=2, map="I~")
+        for step in range(3):
+            md.update(du.Sphere([0.03 * step, -0.02 * step, 0.01], 0.7))
+            out.append(md.mesh.geometry.x.copy())
+        md = du.MovingDomain(bg, degree=2, map="I~")
+        for step in range(3):
+            md.update(du.RigidMotion(ell, rotation=((0.3, 0.2, 1.0), 0.2 * step + 0.1)))
+            out.append(md.mesh.geometry.x.copy())
+        return out
+
+    assert relax_kernels() is not None
+    compiled = meshes()
+    monkeypatch.setenv("DOLFINX_UNIVERSAL_COMPILED", "0")
+    assert relax_kernels() is None
+    for a, b in zip(compiled, meshes(), strict=True):
+        np.testing.assert_array_equal(a, b)
