@@ -358,6 +358,25 @@ static inline double below(double qmax, double tie)
     return q > 0.0 ? q * q * q * (1.0 - 1e-12) : -INFINITY;
 }
 
+/* The worst line_rating over the ne entries at step t along d, from entry *jw on (set to
+   the worst), stopping below out. */
+static inline double line_minimum(const double *w, int64_t ne, int64_t stride, double dx,
+                                  double dy, double dz, double t, double out, int64_t *jw)
+{
+    double m = INFINITY;
+    for (int64_t i = 0, j0 = *jw; i < ne && m >= out; ++i)
+    {
+        int64_t j = i == 0 ? j0 : i == j0 ? 0 : i;
+        double r = line_rating(w, j, stride, dx, dy, dz, t);
+        if (r < m)
+        {
+            m = r;
+            *jw = j;
+        }
+    }
+    return m;
+}
+
 /* The first of the qualities q[0..n) within tie of their maximum. */
 static inline int64_t first_best(const double *q, int64_t n, double tie)
 {
@@ -512,17 +531,8 @@ int64_t dvr_visit(double *y, double *X, double *Y, double *Z, const int64_t *pv,
         int64_t jw = 0;
         for (int64_t k = 0; k < nl; ++k)
         {
-            double t = line_steps[k] * step[v], m = INFINITY, out = below(qmax, tie);
-            for (int64_t i = 0, j0 = jw; i < ne && m >= out; ++i)
-            {
-                int64_t j = i == 0 ? j0 : i == j0 ? 0 : i;
-                double r = line_rating(w, j, stride, dx, dy, dz, t);
-                if (r < m)
-                {
-                    m = r;
-                    jw = j;
-                }
-            }
+            double out = below(qmax, tie);
+            double m = line_minimum(w, ne, stride, dx, dy, dz, line_steps[k] * step[v], out, &jw);
             qc[k] = m < out ? -INFINITY : rating_quality(m);
             qmax = qc[k] > qmax ? qc[k] : qmax;
         }
@@ -555,17 +565,8 @@ int64_t dvr_visit(double *y, double *X, double *Y, double *Z, const int64_t *pv,
             for (int64_t c = 0; c < nc; ++c)
             {
                 const double *d = dirs + 3 * (c % nd);
-                double t = compass_steps[c / nd] * step[v], m = INFINITY, out = below(qmax, tie);
-                for (int64_t i = 0, j0 = jw; i < ne && m >= out; ++i)
-                {
-                    int64_t j = i == 0 ? j0 : i == j0 ? 0 : i;
-                    double r = line_rating(w, j, stride, d[0], d[1], d[2], t);
-                    if (r < m)
-                    {
-                        m = r;
-                        jw = j;
-                    }
-                }
+                double t = compass_steps[c / nd] * step[v], out = below(qmax, tie);
+                double m = line_minimum(w, ne, stride, d[0], d[1], d[2], t, out, &jw);
                 qc[c] = m < out ? -INFINITY : rating_quality(m);
                 qmax = qc[c] > qmax ? qc[c] : qmax;
             }
@@ -590,6 +591,21 @@ int64_t dvr_visit(double *y, double *X, double *Y, double *Z, const int64_t *pv,
     }
     *nG = ng;
     return moves;
+}
+
+/* The rating of entry j of the faces w (centroid, n, lsq at k * stride for k = 0-2, 3-5, 6)
+   with its vertex at p (_Directional._slides: tet.star_quality's operations). */
+static inline double face_rating(const double *w, int64_t j, int64_t stride, const double *p)
+{
+    double qx = p[0] - w[j], qy = p[1] - w[stride + j], qz = p[2] - w[2 * stride + j];
+    double s = qx * w[3 * stride + j];
+    s += qy * w[4 * stride + j];
+    s += qz * w[5 * stride + j];
+    double L = qx * qx;
+    L += qy * qy;
+    L += qz * qz;
+    L += w[6 * stride + j];
+    return rating(s, L);
 }
 
 /* The slides of the vertices on Gamma G[0..nG) (_Directional._slides on one rank): their
@@ -631,16 +647,7 @@ int64_t dvr_slides(double *y, double *X, double *Y, double *Z, const int64_t *pv
             for (int64_t i = 0, j0 = jw; i < ne && m >= out; ++i)
             {
                 int64_t j = i == 0 ? j0 : i == j0 ? 0 : i;
-                double qx = cand[3 * c] - w[j], qy = cand[3 * c + 1] - w[stride + j];
-                double qz = cand[3 * c + 2] - w[2 * stride + j];
-                double s = qx * w[3 * stride + j];
-                s += qy * w[4 * stride + j];
-                s += qz * w[5 * stride + j];
-                double L = qx * qx;
-                L += qy * qy;
-                L += qz * qz;
-                L += w[6 * stride + j];
-                double r = flat[e0 + j] ? -1.0 : rating(s, L);
+                double r = flat[e0 + j] ? -1.0 : face_rating(w, j, stride, cand + 3 * c);
                 if (r < m)
                 {
                     m = r;
@@ -669,17 +676,7 @@ int64_t dvr_slides(double *y, double *X, double *Y, double *Z, const int64_t *pv
             continue;
         const double *pos = cand + 3 * b;
         for (int64_t j = 0; j < ne; ++j)
-        {
-            double qx = pos[0] - w[j], qy = pos[1] - w[stride + j], qz = pos[2] - w[2 * stride + j];
-            double s = qx * w[3 * stride + j];
-            s += qy * w[4 * stride + j];
-            s += qz * w[5 * stride + j];
-            double L = qx * qx;
-            L += qy * qy;
-            L += qz * qz;
-            L += w[6 * stride + j];
-            rnew[j] = flat[e0 + j] ? -1.0 : rating(s, L);
-        }
+            rnew[j] = flat[e0 + j] ? -1.0 : face_rating(w, j, stride, pos);
         nrm[3 * p] = pn[3 * (ns * g + b)];
         nrm[3 * p + 1] = pn[3 * (ns * g + b) + 1];
         nrm[3 * p + 2] = pn[3 * (ns * g + b) + 2];
