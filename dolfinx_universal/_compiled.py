@@ -391,14 +391,14 @@ static inline int64_t first_best(const double *q, int64_t n, double tie)
 }
 
 /* A vertex's move: its position, its star's ratings and its next step (_Directional._apply). */
-static inline void dvr_move(double *y, double *X, double *Y, double *Z, int64_t p,
-                            const double *pos, const int64_t *cell_idx, const int64_t *csub,
-                            int64_t e0, int64_t ne, const double *rnew, double *rcell,
-                            uint8_t *again, double *step, double hmin, double hmax, double tb)
+static inline void dvr_move(double *y, int64_t p, const double *pos, const int64_t *cell_idx,
+                            const int64_t *csub, int64_t e0, int64_t ne, const double *rnew,
+                            double *rcell, uint8_t *again, double *step, double hmin,
+                            double hmax, double tb)
 {
-    y[3 * p] = X[p] = pos[0];
-    y[3 * p + 1] = Y[p] = pos[1];
-    y[3 * p + 2] = Z[p] = pos[2];
+    y[3 * p] = pos[0];
+    y[3 * p + 1] = pos[1];
+    y[3 * p + 2] = pos[2];
     for (int64_t j = 0; j < ne; ++j) /* the star's new ratings; its vertices work again */
     {
         int64_t c = cell_idx[e0 + j];
@@ -460,7 +460,7 @@ static inline void slide_candidates(const double *y, const double *n, double dx,
    line step and quality) for the slides (dvr_slides). The entries of movable vertex v are
    vfirst[v]..vfirst[v] + vcount[v]; w is scratch of 9 * stride doubles, stride at least
    the largest star. Returns the number of moves, -1 for more than 64 candidates. */
-int64_t dvr_visit(double *y, double *X, double *Y, double *Z, const int64_t *pv,
+int64_t dvr_visit(double *y, const int64_t *pv,
                   const int64_t *f0, const int64_t *f1, const int64_t *f2,
                   const int64_t *cell_idx, const int64_t *csub, double *rcell,
                   const int64_t *vfirst, const int64_t *vcount, const uint8_t *gamma,
@@ -472,7 +472,7 @@ int64_t dvr_visit(double *y, double *X, double *Y, double *Z, const int64_t *pv,
                   double active, double *w, int64_t stride, uint8_t *again, int64_t *G,
                   double *gdv, double *gtb, double *gq0, double *gpc, double *gtg, int64_t *nG)
 {
-    double qc[64], rmin[64], rnew[stride > 0 ? stride : 1];
+    double qc[64], rnew[stride > 0 ? stride : 1];
     if (nl > 64 || nd * ncs > 64)
         return -1;
     int64_t moves = 0, ng = 0;
@@ -585,7 +585,7 @@ int64_t dvr_visit(double *y, double *X, double *Y, double *Z, const int64_t *pv,
         double pos[3] = {y[3 * p] + tb * ex, y[3 * p + 1] + tb * ey, y[3 * p + 2] + tb * ez};
         for (int64_t j = 0; j < ne; ++j)
             rnew[j] = line_rating(w, j, stride, ex, ey, ez, tb);
-        dvr_move(y, X, Y, Z, p, pos, cell_idx, csub, e0, ne, rnew, rcell, again, step + v,
+        dvr_move(y, p, pos, cell_idx, csub, e0, ne, rnew, rcell, again, step + v,
                  hmin[v], hmax[v], tb);
         ++moves;
     }
@@ -614,7 +614,7 @@ static inline double face_rating(const double *w, int64_t j, int64_t stride, con
    + 1] of cap_w and cap_len2, beyond its cap); the first within tie of the best moves its
    vertex if it beats q0 by more than tie. Returns the number of moves, -1 for more than 64
    candidates. */
-int64_t dvr_slides(double *y, double *X, double *Y, double *Z, const int64_t *pv,
+int64_t dvr_slides(double *y, const int64_t *pv,
                    const int64_t *f0, const int64_t *f1, const int64_t *f2,
                    const int64_t *cell_idx, const int64_t *csub, const uint8_t *flat,
                    double *rcell, const int64_t *vfirst, const int64_t *vcount,
@@ -680,7 +680,7 @@ int64_t dvr_slides(double *y, double *X, double *Y, double *Z, const int64_t *pv
         nrm[3 * p] = pn[3 * (ns * g + b)];
         nrm[3 * p + 1] = pn[3 * (ns * g + b) + 1];
         nrm[3 * p + 2] = pn[3 * (ns * g + b) + 2];
-        dvr_move(y, X, Y, Z, p, pos, cell_idx, csub, e0, ne, rnew, rcell, again, step + v,
+        dvr_move(y, p, pos, cell_idx, csub, e0, ne, rnew, rcell, again, step + v,
                  hmin[v], hmax[v], tg[ns * g + b]);
         ++moves;
     }

@@ -480,7 +480,8 @@ class _TetStars:
         base = 4 * cell_idx
         f0, f1, f2 = (flat_cells[base + tet.FACETS[:, i][corner]] for i in range(3))
         self.pv = verts[ev].astype(np.int64)
-        self.yc = (y[:, 0].copy(), y[:, 1].copy(), y[:, 2].copy())  # y's coordinates
+        # y's coordinates, for the numpy code (the C kernels read y)
+        self.yc = (y[:, 0].copy(), y[:, 1].copy(), y[:, 2].copy()) if kernels is None else None
         self.f0, self.f1, self.f2 = f0, f1, f2
         self.cell_idx, self.ev = cell_idx, ev
         self.rcell = np.full(len(cells), -1.0)
@@ -520,7 +521,7 @@ class _TetStars:
                 pointer(ffi, self.rcell, "double"),
             )  # fmt: skip
             return
-        _, _, _, s, L = star_terms(self.yc, self.pv[first], f0[first], f1[first], f2[first])
+        _, _, _, s, L = self.terms(first)
         orient = np.zeros(k)
         orient[cell_idx[first]] = np.sign(s)
         eo = orient[cell_idx]
@@ -554,20 +555,14 @@ class _TetStars:
         self._k["cap_len2"] = np.ascontiguousarray(self.cap_len2, dtype=np.float64)
         types = {"flat": "uint8_t", "cap_len2": "double"}
         self.p = {n: pointer(ffi, a, types.get(n, "int64_t")) for n, a in self._k.items()}
-        for name, a in (
-            ("y", self.y),
-            ("X", self.yc[0]),
-            ("Y", self.yc[1]),
-            ("Z", self.yc[2]),
-            ("rcell", self.rcell),
-            ("scratch", self.scratch),
-        ):
+        for name, a in (("y", self.y), ("rcell", self.rcell), ("scratch", self.scratch)):
             self.p[name] = pointer(ffi, a, "double")
         self.p["vfirst"] = pointer(ffi, self.vfirst, "int64_t")
         self.p["vcount"] = pointer(ffi, self.vcount, "int64_t")
 
     def terms(self, E: Int) -> tuple:
         """:func:`star_terms` of the entries ``E`` at the current positions."""
+        assert self.yc is not None
         return star_terms(self.yc, self.pv[E], self.f0[E], self.f1[E], self.f2[E])
 
 
@@ -620,14 +615,14 @@ class _Directional:
         self.rowof[S] = np.arange(len(S))
         rE = self.rowof[vE]
         starts = np.flatnonzero(np.diff(rE, prepend=-1))
-        rE_ = st.rcell[cell_idx[E]]
-        rv = self._rows(S, rE[starts], _segment_min(rE_, starts), "min")
+        rcE = st.rcell[cell_idx[E]]  # the entries' ratings
+        rv = self._rows(S, rE[starts], _segment_min(rcE, starts), "min")
         work = (rv < _ACTIVE_RATING) & (rv > 0.0)
         # Only the vertices to work on and their entries, from here (rows renumbered).
         keep = work[rE]
         E, S, q0 = E[keep], S[work], rating_quality(rv[work])
         rE = (np.cumsum(work) - 1)[rE[keep]]
-        v = _Visit(S, E, q0, vE[keep], rE, st.terms(E), rE_[keep])
+        v = _Visit(S, E, q0, vE[keep], rE, st.terms(E), rcE[keep])
         self._direction(v)
         self._line(v)
         stuck = ~v.gain & ~self.gamma_v[S]
@@ -661,7 +656,7 @@ class _Directional:
         S = np.ascontiguousarray(S, dtype=np.int64)
         nG = ffi.new("int64_t *")
         moves = lib.dvr_visit(
-            p["y"], p["X"], p["Y"], p["Z"], p["pv"], p["f0"], p["f1"], p["f2"], p["cell_idx"],
+            p["y"], p["pv"], p["f0"], p["f1"], p["f2"], p["cell_idx"],
             p["csub"], p["rcell"], p["vfirst"], p["vcount"], cp["gamma"], cp["nrm"],
             cp["step"], cp["hmin"], cp["hmax"], pointer(ffi, S, "int64_t"), len(S),
             cp["line"], len(LINE_STEPS), pointer(ffi, dirs, "double"), len(dirs),
@@ -686,7 +681,7 @@ class _Directional:
             pp, pn, tg = self.slide_candidates(G, c["gdv"][:ng], c["gtb"][:ng], turn)
         pp, pn, tg = (np.ascontiguousarray(a, dtype=np.float64) for a in (pp, pn, tg))
         slid = lib.dvr_slides(
-            p["y"], p["X"], p["Y"], p["Z"], p["pv"], p["f0"], p["f1"], p["f2"], p["cell_idx"],
+            p["y"], p["pv"], p["f0"], p["f1"], p["f2"], p["cell_idx"],
             p["csub"], p["flat"], p["rcell"], p["vfirst"], p["vcount"], cp["nrm"],
             cp["step"], cp["hmin"], cp["hmax"], p["cap_ptr"], p["cap_w"], p["cap_len2"],
             cp["G"], ng, cp["gq0"], pointer(ffi, pp, "double"), pointer(ffi, pn, "double"),
@@ -837,22 +832,14 @@ class _Directional:
         pcx, pcy, pcz = (np.ascontiguousarray(pp[..., i].T) for i in range(3))
         ip = st.pv[E[eg]]
         yc = st.yc
-        # The entries' facets: centroid g = p - u, n and lsq (tet.star_faces), and the
-        # ratings of the candidates, laid out (ns, entries).
-        qx, qy, qz = pcx[:, rg], pcy[:, rg], pcz[:, rg]
-        qx -= yc[0][ip] - ux[eg]
-        qy -= yc[1][ip] - uy[eg]
-        qz -= yc[2][ip] - uz[eg]
-        sg = qx * nx[eg]
-        sg += qy * ny[eg]
-        sg += qz * nz[eg]
-        qx *= qx
-        qy *= qy
-        qx += qy
-        qz *= qz
-        qx += qz
-        qx += lsq[eg]
-        rg_ = _rating(sg, qx)  # (ns, entries)
+        assert yc is not None
+        # The entries' facets (tet.star_faces: centroid g = p - u, n, lsq), rated at the
+        # candidates, laid out (ns, entries).
+        face = tet.StarFaces(
+            *(a[None] for a in (yc[0][ip] - ux[eg], yc[1][ip] - uy[eg], yc[2][ip] - uz[eg],
+                                nx[eg], ny[eg], nz[eg], lsq[eg]))
+        )  # fmt: skip
+        rg_ = _rating(*tet.star_volume_terms(pcx[:, rg], pcy[:, rg], pcz[:, rg], face))
         rg_[:, st.flat[E[eg]]] = -1.0
         seg = np.flatnonzero(np.diff(rg, prepend=-1))
         rsg = np.full((len(G), ns), np.inf)
@@ -887,6 +874,7 @@ class _Directional:
         st, verts, gain = self.stars, self.sub.vertices, v.gain
         win = v.S[gain]
         st.y[verts[win]] = v.new[gain]
+        assert st.yc is not None
         for i in range(3):
             st.yc[i][verts[win]] = v.new[gain, i]
         moved_e = gain[v.rE]

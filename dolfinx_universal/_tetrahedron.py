@@ -54,6 +54,7 @@ __all__ = [
     "star_entries",
     "star_faces",
     "star_quality",
+    "star_volume_terms",
     "summary_and_volumes",
     "tangent_angles",
     "tangent_directions",
@@ -400,9 +401,10 @@ def star_quality(
     cell's scale (relative error about ``eps |g| / height of p above the facet``).
 
     Cost: 21 array passes of the candidates' shape, 4 of them on booleans (3 subtractions,
-    5 for ``s``, 6 for the norm, cube root, square, division, and a branch-free blend to
-    -1 where ``s <= 0``: masked assignments cost 2-3 times more when the invalid
-    candidates are scattered); with ``signed``, 18. Five float temporaries.
+    5 for ``s``, 6 for the norm: :func:`star_volume_terms`; cube root, square, division,
+    and a branch-free blend to -1 where ``s <= 0``: masked assignments cost 2-3 times more
+    when the invalid candidates are scattered); with ``signed``, 18. Five float
+    temporaries.
 
     Parameters
     ----------
@@ -422,6 +424,25 @@ def star_quality(
     -------
     The qualities, shape of the broadcast inputs.
     """
+    s, L = star_volume_terms(px, py, pz, face)
+    r = np.cbrt(s)
+    if signed:
+        r *= np.abs(r)
+        r /= L
+        return r
+    r *= r
+    r /= L
+    mask = np.greater(s, 0.0)
+    r *= mask
+    np.less_equal(s, 0.0, out=mask)
+    r -= mask  # r where s > 0, 0 - 1 elsewhere
+    return r
+
+
+def star_volume_terms(px: Float, py: Float, pz: Float, face: StarFaces) -> tuple[Float, Float]:
+    """``s = k^(3/2) 6 V`` and ``L`` (the sum of the squared edge lengths over 3) of the
+    tetrahedra ``(p, a, b, c)`` of :func:`star_quality` (same arguments), whose quality is
+    ``cbrt(s)^2 / L``: 13 array passes, four float temporaries."""
     nd = np.ndim(px)
     gx, gy, gz, nx, ny, nz, lsq = (
         v.reshape(v.shape + (1,) * (nd - v.ndim)) if v.ndim < nd else v for v in face
@@ -438,18 +459,7 @@ def star_quality(
     np.multiply(qz, qz, out=qz)
     qx += qz
     qx += lsq  # (sum of squared edge lengths) / 3 > 0
-    r = np.cbrt(s, out=t)
-    if signed:
-        r *= np.abs(r, out=qy)
-        r /= qx
-        return r
-    r *= r
-    r /= qx
-    mask = np.greater(s, 0.0)
-    r *= mask
-    np.less_equal(s, 0.0, out=mask)
-    r -= mask  # r where s > 0, 0 - 1 elsewhere
-    return r
+    return s, qx
 
 
 def quality_summary(
