@@ -7,7 +7,8 @@ candidates, and those per-call costs, not the arithmetic, were most of the relax
 time. Here, on triangles, a sweep's colour passes (ratings, decisions, steps), the star
 minima and the compass candidates are C loops; on tetrahedra, each colour's visit (ascent
 directions, line searches, compass, the slides' candidates and their exact ratings), the
-colouring and the set-up of the stars.
+colouring and the set-up of the stars. One kernel serves the moving update instead: the
+affine images of the nodes it rewrites, each node once.
 
 The kernels evaluate the same floating-point operations in the same order as the numpy
 code they replace (no contraction into fused multiply-adds, ``-ffp-contract=off``; square
@@ -847,6 +848,41 @@ void dvr_orient(const double *y, const int64_t *pv, const int64_t *f0, int64_t *
         rcell[cell_idx[e]] = flat[e] ? -1.0 : rating(t[7], t[8]);
     }
     free(orient);
+}
+
+/* The affine images under y (rows of gdim) of the nodes of the m cells redo
+   (moving.MovingDomain._write_affine_nodes): each node once, from the cell and slot of
+   code[node] = cell * ndofs + slot, lam's row of the slot summed in vertex order (nv
+   vertices) into x (rows of 3); mark flags the nodes written, listed in touched. Returns
+   their number. */
+int64_t affine_nodes(const int64_t *redo, int64_t m, const int32_t *dofmap, int64_t ndofs,
+                     const int32_t *c2v, int64_t nv, const int64_t *code, const double *lam,
+                     const double *y, int64_t gdim, double *x, uint8_t *mark,
+                     int64_t *touched)
+{
+    int64_t n = 0;
+    for (int64_t i = 0; i < m; ++i)
+    {
+        const int32_t *dofs = dofmap + redo[i] * ndofs;
+        for (int64_t j = 0; j < ndofs; ++j)
+        {
+            int64_t node = dofs[j];
+            if (mark[node])
+                continue;
+            mark[node] = 1;
+            touched[n++] = node;
+            const double *w = lam + (code[node] % ndofs) * nv;
+            const int32_t *v = c2v + (code[node] / ndofs) * nv;
+            for (int64_t d = 0; d < gdim; ++d)
+            {
+                double acc = w[0] * y[v[0] * gdim + d];
+                for (int64_t k = 1; k < nv; ++k)
+                    acc += w[k] * y[v[k] * gdim + d];
+                x[node * 3 + d] = acc;
+            }
+        }
+    }
+    return n;
 }
 """
 

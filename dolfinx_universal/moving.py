@@ -19,11 +19,12 @@ from dolfinx import mesh as dmesh
 
 from . import _curved_tet
 from . import _tetrahedron as tet
+from ._compiled import pointer, relax_kernels
 from ._geometry import all_rows, any_rows
 from .boundaries import Boundary
 from .classify import interior_angles, positively_cut
 from .conform import UniversalMesh
-from .curved import MAPS, jacobian_ratio, map_nodes
+from .curved import MAPS, jacobian_ratio, map_nodes, reference_nodes
 from .jacobian import check_degree
 from .quality import cell_quality, edge_ratio, radius_ratio
 from .validation import (
@@ -198,6 +199,7 @@ class MovingDomain:
         self.active_cells = np.empty(0, dtype=np.int32)
         """Cells of ``T_h^sub`` (process-local, owned and ghost)."""
         self._cells = np.arange(len(self._c2v), dtype=np.int32)
+        self._kept_bins: tuple[npt.NDArray[np.bool_], npt.NDArray[np.int64]] | None = None
         self._active_tags: dmesh.MeshTags | None = self._tags()
         self.steps: list[StepReport] = []
         self._coverage: tuple[SizeField, npt.NDArray[np.float64], int, float | None] | None = None
@@ -417,12 +419,15 @@ class MovingDomain:
         cells = c2v[redo]
         kept = sm.kept[redo]
         cut = np.flatnonzero(kept & positively_cut(sm.sign, cells))
+        # The curved map on the cells it curves (``curve``, among ``redo``); every other
+        # node is the affine image of its entity's vertices, written below.
         if self.tdim == 2:
+            curve = cut
             nodes = collective_call(
                 self.comm,
                 "the curved map",
                 map_nodes,
-                cells,
+                cells[curve],
                 sm.y,
                 sm.x,
                 sm.sign,
@@ -430,25 +435,25 @@ class MovingDomain:
                 self._kind,
                 boundary.closest_point,
             )
-            curved = cut
-        elif self.degree == 1:  # straight tetrahedra: the vertex images are the nodes
-            nodes, curved = sm.y[cells], cut[:0]
+        elif self.degree == 1:  # straight tetrahedra: nothing is curved
+            curve, nodes = cut[:0], np.empty((0, 4, 3))
         else:
             face, edges = self._gamma_entities(sm, redo, cut)
+            curve = np.flatnonzero(any_rows(edges))
             nodes = collective_call(
                 self.comm,
                 "the curved map",
                 _curved_tet.map_nodes,
-                cells,
+                cells[curve],
                 sm.y,
                 sm.x,
-                face,
-                edges,
+                face[curve],
+                edges[curve],
                 self.degree,
                 self._kind,
                 boundary.closest_point,
             )
-            curved = np.flatnonzero(kept & any_rows(edges))
+        curved = np.flatnonzero(kept[curve])  # the active ones, proven valid
         ratio = jacobian_ratio(nodes[curved], self.degree) if self.degree > 1 else np.ones(0)
         bad = ratio <= 0
         raise_collective(
@@ -466,12 +471,14 @@ class MovingDomain:
             if bad.any()
             else [],
         )
-        # Write the nodes in place; inactive cells first, so that on Gamma_h the active
-        # cell's curved nodes win.
+        # Write the nodes in place: the affine ones, then the curved cells' (inactive ones
+        # first, so that on Gamma_h the active cell's curved nodes win).
         x = self.mesh.geometry.x
-        order = np.argsort(kept, kind="stable")
-        rows = self._dofmap[redo[order]].ravel()
+        touched = self._write_affine_nodes(redo, sm.y, x)
+        order = np.argsort(kept[curve], kind="stable")
+        rows = self._dofmap[redo[curve[order]]].ravel()
         x[rows, : self.tdim] = nodes[order].reshape(-1, self.tdim)
+        rows = np.concatenate([touched, rows])
         self._sync_ghost_nodes(rows, x)
         self._dirty, self._kept = near, sm.kept
         self.active.x.array[self._cell_dof[redo]] = kept.astype(np.float64)
@@ -496,6 +503,53 @@ class MovingDomain:
         )
         self.steps.append(report)
         return report
+
+    @cached_property
+    def _node_entity(self) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
+        """For each geometry node, one cell holding it and the slot there (``cell * ndofs +
+        slot``), and the barycentric coordinates of the reference nodes ``(ndofs, tdim + 1)``."""
+        dofmap = self._dofmap
+        code = np.empty(self.mesh.geometry.x.shape[0], dtype=np.int64)
+        code[dofmap] = np.arange(dofmap.size, dtype=np.int64).reshape(dofmap.shape)
+        lam = (_curved_tet.reference_nodes if self.tdim == 3 else reference_nodes)(self.degree)
+        return code, lam
+
+    def _write_affine_nodes(
+        self, redo: npt.NDArray[np.intp], y: npt.NDArray[np.float64], x: npt.NDArray[np.float64]
+    ) -> npt.NDArray[np.int64]:
+        """Write the affine images (under the vertex images ``y``) of the nodes of the cells
+        ``redo`` into ``x``, each node once, and return them.
+
+        A node is the image of its reference point in one cell holding it, summed in vertex
+        order (the sums of :func:`~dolfinx_universal.curved.map_nodes`): the same value as
+        from any other cell for a node on a vertex or an edge, within an ulp on a face. A C
+        kernel where available (one pass over the cells), else numpy: bitwise the same.
+        """
+        code, lam = self._node_entity
+        kernels = relax_kernels()
+        if kernels is not None:
+            ffi, redo = kernels.ffi, np.ascontiguousarray(redo, dtype=np.int64)
+            y = np.ascontiguousarray(y)
+            mark = np.zeros(len(x), dtype=np.uint8)
+            touched = np.empty(len(x), dtype=np.int64)
+            n = kernels.lib.affine_nodes(
+                pointer(ffi, redo, "int64_t"), len(redo), pointer(ffi, self._dofmap, "int32_t"),
+                lam.shape[0], pointer(ffi, self._c2v, "int32_t"), lam.shape[1],
+                pointer(ffi, code, "int64_t"), pointer(ffi, lam, "double"),
+                pointer(ffi, y, "double"), y.shape[1], pointer(ffi, x, "double"),
+                pointer(ffi, mark, "uint8_t"), pointer(ffi, touched, "int64_t"),
+            )  # fmt: skip
+            return touched[:n]
+        mark = np.zeros(len(x), dtype=bool)
+        mark[self._dofmap[redo]] = True
+        touched = np.flatnonzero(mark)
+        cell, slot = np.divmod(code[touched], lam.shape[0])
+        v, w = self._c2v[cell], lam[slot]
+        value = w[:, :1] * y[v[:, 0]]
+        for k in range(1, v.shape[1]):
+            value += w[:, k : k + 1] * y[v[:, k]]
+        x[touched, : self.tdim] = value
+        return touched
 
     def _gamma_entities(
         self, sm, redo: npt.NDArray[np.intp], cut: npt.NDArray[np.intp]
@@ -594,8 +648,7 @@ class MovingDomain:
                 rep["radius_ratio_min"] = min(rep["radius_ratio_min"], ext("rr", np.min, 1.0))
                 rep["mean_ratio_min"] = min(rep["mean_ratio_min"], ext("mr", np.min, 1.0))
                 rep["min_volume_ratio"] = min(rep["min_volume_ratio"], 1.0)
-                nbins = len(tet.DIHEDRAL_BIN_EDGES) - 1
-                hist = np.bincount(b["bins"][far].ravel(), minlength=nbins).astype(np.int64)
+                hist = self._kept_histogram(kept) - self._histogram(near_kept[~plain])
                 self.comm.Allreduce(MPI.IN_PLACE, hist, op=MPI.SUM)
                 rep["dihedral_histogram"] = [
                     int(a + c) for a, c in zip(rep["dihedral_histogram"], hist)
@@ -605,8 +658,25 @@ class MovingDomain:
             rep["percent_unaltered"] = 100.0 * rep["n_unaltered"] / max(rep["n_cells"], 1)
         return rep
 
+    def _histogram(self, cells: npt.NDArray[np.intp]) -> npt.NDArray[np.int64]:
+        """Histogram of the background dihedral angles of owned ``cells``."""
+        nbins = len(tet.DIHEDRAL_BIN_EDGES) - 1
+        bins = self._background_quality["bins"][cells].ravel()
+        return np.bincount(bins, minlength=nbins).astype(np.int64)
+
+    def _kept_histogram(self, kept: npt.NDArray[np.bool_]) -> npt.NDArray[np.int64]:
+        """:meth:`_histogram` of the owned ``kept`` cells, updated from the previous call's
+        by the cells that entered or left (few: those near Gamma)."""
+        if self._kept_bins is None:
+            self._kept_bins = (np.zeros_like(kept), self._histogram(np.empty(0, dtype=np.intp)))
+        before, hist = self._kept_bins
+        flip = np.flatnonzero(kept != before)
+        hist = hist + self._histogram(flip[kept[flip]]) - self._histogram(flip[~kept[flip]])
+        self._kept_bins = (kept.copy(), hist)
+        return hist
+
     @cached_property
-    def _background_quality(self) -> dict[str, npt.NDArray[np.float64]]:
+    def _background_quality(self) -> dict[str, npt.NDArray[Any]]:
         """Per-cell quality of the owned background cells."""
         x, cells = self.universal.vertex_coordinates, self._c2v[: self._nco]
         if self.tdim == 2:

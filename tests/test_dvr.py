@@ -382,8 +382,9 @@ def test_compiled_relaxation_is_numpy_s(monkeypatch, frame):
 
 def test_compiled_moving_tetrahedra_are_numpy_s(monkeypatch):
     """Three steps of a moving ball and of a moving turned ellipsoid (the body's frame) on
-    one A15 background, q = 2: the same degree-2 geometry, bitwise, with the C kernels and
-    with the numpy code."""
+    one A15 background, q = 2, of the ball at q = 3 and of a disc on triangles at q = 3: the
+    same geometry, bitwise, with the C kernels (relaxation, affine nodes) and with the numpy
+    code."""
     import dolfinx_universal as du
     from dolfinx_universal._compiled import relax_kernels
 
@@ -400,6 +401,14 @@ def test_compiled_moving_tetrahedra_are_numpy_s(monkeypatch):
         md = du.MovingDomain(bg, degree=2, map="I~")
         for step in range(3):
             md.update(du.RigidMotion(ell, rotation=((0.3, 0.2, 1.0), 0.2 * step + 0.1)))
+            out.append(md.mesh.geometry.x.copy())
+        md = du.MovingDomain(bg, degree=3, map="I")  # face nodes: sums of three terms
+        for step in range(3):
+            md.update(du.Sphere([-0.02 * step, 0.03 * step, 0.01], 0.6))
+            out.append(md.mesh.geometry.x.copy())
+        md = du.MovingDomain(du.equilateral_mesh(comm, [[0, 0], [1, 1]], 0.04), degree=3)
+        for step in range(3):
+            md.update(du.Circle([0.5 + 0.011 * step, 0.49], 0.3))
             out.append(md.mesh.geometry.x.copy())
         return out
 
