@@ -7,8 +7,8 @@ candidates, and those per-call costs, not the arithmetic, were most of the relax
 time. Here, on triangles, a sweep's colour passes (ratings, decisions, steps), the star
 minima and the compass candidates are C loops; on tetrahedra, each colour's visit (ascent
 directions, line searches, compass, the slides' candidates and their exact ratings), the
-colouring and the set-up of the stars. One kernel serves the moving update instead: the
-affine images of the nodes it rewrites, each node once.
+colouring and the set-up of the stars. Two kernels compute affine geometry nodes instead:
+those a moving update rewrites, each once, and the entity nodes of a degree-q geometry.
 
 The kernels evaluate the same floating-point operations in the same order as the numpy
 code they replace (no contraction into fused multiply-adds, ``-ffp-contract=off``; square
@@ -883,6 +883,40 @@ int64_t affine_nodes(const int64_t *redo, int64_t m, const int32_t *dofmap, int6
         }
     }
     return n;
+}
+
+/* The nodes of n entities of nv vertices (_lagrange.lagrange_geometry): each entity's
+   vertices e2v ordered by their global indices gv, then for each of its ns slots key's row
+   summed in that order from the vertex positions xv (rows of 3) into the rows of 3 of
+   owned (entities e < size: row e * ns + slot) or ghost (row (e - size) * ns + slot). */
+void entity_nodes(const int32_t *e2v, int64_t n, int64_t nv, const int64_t *gv,
+                  const double *xv, const double *key, int64_t ns, int64_t size,
+                  double *owned, double *ghost)
+{
+    for (int64_t e = 0; e < n; ++e)
+    {
+        int32_t v[4];
+        for (int64_t k = 0; k < nv; ++k)
+        {
+            int32_t a = e2v[e * nv + k];
+            int64_t j = k;
+            for (; j > 0 && gv[v[j - 1]] > gv[a]; --j)
+                v[j] = v[j - 1];
+            v[j] = a;
+        }
+        double *out = e < size ? owned + e * ns * 3 : ghost + (e - size) * ns * 3;
+        for (int64_t slot = 0; slot < ns; ++slot)
+        {
+            const double *w = key + slot * nv;
+            for (int64_t d = 0; d < 3; ++d)
+            {
+                double acc = w[0] * xv[v[0] * 3 + d];
+                for (int64_t k = 1; k < nv; ++k)
+                    acc += w[k] * xv[v[k] * 3 + d];
+                out[slot * 3 + d] = acc;
+            }
+        }
+    }
 }
 """
 

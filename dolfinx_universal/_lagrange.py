@@ -35,6 +35,7 @@ from dolfinx import fem
 from dolfinx import mesh as dmesh
 from dolfinx.common import IndexMap
 
+from ._compiled import pointer, relax_kernels
 from ._geometry import Float, Int, lagrange_element, readonly
 
 __all__ = ["lagrange_geometry"]
@@ -235,18 +236,30 @@ def lagrange_geometry(msh: dmesh.Mesh, element: fem.CoordinateElement) -> dmesh.
     x = np.empty((num_nodes, 3))
     x[:n_own][: gmap.size_local] = xg[: gmap.size_local]
     x[ghost_off[0] : ghost_off[1]] = xg[gmap.size_local : gmap.size_local + gmap.num_ghosts]
+    kernels = relax_kernels()
     for d in range(1, tdim + 1):
         imap, n = blocks[d]
         if not n:
             continue
         e2v = topology.connectivity(d, 0).array.reshape(-1, d + 1) if d < tdim else c2v
+        size = imap.size_local
+        owned = x[own_off[d] : own_off[d + 1]]
+        shared = x[ghost_off[d] : ghost_off[d + 1]]
+        if kernels is not None:  # the operations below in C, one pass over the entities
+            ffi, key = kernels.ffi, np.ascontiguousarray(keys[d - 1], dtype=np.float64)
+            gv64 = np.ascontiguousarray(gv, dtype=np.int64)
+            e2v = np.ascontiguousarray(e2v, dtype=np.int32)
+            kernels.lib.entity_nodes(
+                pointer(ffi, e2v, "int32_t"), len(e2v), d + 1, pointer(ffi, gv64, "int64_t"),
+                pointer(ffi, xv, "double"), pointer(ffi, key, "double"), n, size,
+                pointer(ffi, owned, "double"), pointer(ffi, shared, "double"),
+            )  # fmt: skip
+            continue
         g = np.take(gv, e2v)
         if not (g[:, 1:] > g[:, :-1]).all():  # DOLFINx sorts them; not relied upon
             e2v = np.take_along_axis(e2v, np.argsort(g, axis=1), axis=1)
         corners = [np.take(xv, e2v[:, k], axis=0) for k in range(d + 1)]
-        size = imap.size_local
-        owned = x[own_off[d] : own_off[d + 1]].reshape(size, n, 3)
-        shared = x[ghost_off[d] : ghost_off[d + 1]].reshape(imap.num_ghosts, n, 3)
+        owned, shared = owned.reshape(size, n, 3), shared.reshape(imap.num_ghosts, n, 3)
         for slot, key in enumerate(keys[d - 1]):
             value = key[0] * corners[0]
             for k in range(1, d + 1):

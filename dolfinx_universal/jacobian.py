@@ -3,10 +3,12 @@ subdivision (the tetrahedron pieces are in :mod:`._bernstein_tet`)."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from functools import lru_cache
 from math import factorial
 
 import numpy as np
+import numpy.typing as npt
 from scipy.linalg import lu_factor, lu_solve
 
 from . import _bernstein_tet as _tet
@@ -251,6 +253,26 @@ def bernstein_coefficients(nodes: Float, degree: int) -> Float:
     return _to_bernstein(2, 2 * (degree - 1))(det)
 
 
+def _first_level(
+    blocks: Iterator[tuple[int, Float]], det0: Float, to_bernstein: _ToBernstein, nb: int
+) -> tuple[npt.NDArray[np.bool_], Float, Float]:
+    """The ratios ``det J / det J_affine`` at the control points, block by block of cells
+    (``(start, det)``, each reduced while it is in cache): the cells whose ratio is not
+    defined (``det J_affine = 0`` or a value not finite; their ratios count as 1), the
+    smallest ratio of each cell and its Bernstein coefficients ``(m, nb)``."""
+    m = len(det0)
+    bad, upper, coef = np.empty(m, dtype=bool), np.empty(m), np.empty((m, nb))
+    for s, det in blocks:
+        rows = slice(s, s + len(det))
+        d0 = det0[rows]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = det / d0[:, None]
+        undefined = (d0 == 0) | ~np.isfinite(ratio).all(axis=1)
+        ratio[undefined] = 1.0
+        bad[rows], upper[rows], coef[rows] = undefined, ratio.min(axis=1), to_bernstein(ratio)
+    return bad, upper, coef
+
+
 def jacobian_bounds(
     nodes: Float,
     degree: int,
@@ -319,7 +341,7 @@ def jacobian_bounds(
     if tetrahedra:
         order = 3 * (degree - 1)
         det0 = _tet.affine_determinant(nodes)
-        det = _tet.lattice_determinant(nodes, degree)
+        blocks = _tet.lattice_blocks(nodes, degree)
         split, nchildren = _tet.subdivision(order), 8
         max_depth = 6 if max_depth is None else max_depth
     else:
@@ -328,19 +350,13 @@ def jacobian_bounds(
         det0 = (p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 2, 0] - p[:, 0, 0]) * (
             p[:, 1, 1] - p[:, 0, 1]
         )
-        det = _determinant(nodes, _lattice_derivatives(degree))  # (m, nb) at the control points
+        blocks = iter([(0, _determinant(nodes, _lattice_derivatives(degree)))])  # (m, nb)
         split, nchildren = _subdivision(order), 4
         max_depth = 8 if max_depth is None else max_depth
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ratio = det / det0[:, None]
-    bad = (det0 == 0) | ~np.isfinite(ratio).all(axis=1)
-    ratio[bad] = 1.0
-
-    upper = ratio.min(axis=1)
+    nb = split.shape[0]
+    bad, upper, coef = _first_level(blocks, det0, _to_bernstein(3 if tetrahedra else 2, order), nb)
     lower = np.full(m, np.inf)
     cell = np.arange(m)  # the cell of each leaf
-    coef = _to_bernstein(3 if tetrahedra else 2, order)(ratio)  # (leaves, nb)
-    nb = split.shape[0]
     for depth in range(max_depth + 1):
         low = coef.min(axis=1)
         up = upper[cell]

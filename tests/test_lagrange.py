@@ -91,6 +91,22 @@ def test_each_global_node_has_one_position(cell, mode):
 
 @pytest.mark.mpi
 @pytest.mark.parametrize("cell", list(DEGREES))
+def test_compiled_nodes_are_numpy_s(cell, monkeypatch):
+    """The entity nodes from the C kernel and from the numpy code: bitwise the same (the
+    same sums in the same order), owned and ghost, at every degree."""
+    from dolfinx_universal._compiled import relax_kernels
+
+    msh = distorted(cell)
+    assert relax_kernels() is not None
+    compiled = [both(msh, degree)[1].geometry.x.copy() for degree in DEGREES[cell]]
+    monkeypatch.setenv("DOLFINX_UNIVERSAL_COMPILED", "0")
+    assert relax_kernels() is None
+    for degree, x in zip(DEGREES[cell], compiled, strict=True):
+        np.testing.assert_array_equal(x, both(msh, degree)[1].geometry.x, err_msg=f"q={degree}")
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("cell", list(DEGREES))
 def test_ranks_without_cells(cell):
     """A mesh whose cells all lie on rank 0 (a submesh of rank 0's cells)."""
     msh = distorted(cell)
