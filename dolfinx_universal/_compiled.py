@@ -688,6 +688,21 @@ int64_t dvr_slides(double *y, const int64_t *pv,
     return moves;
 }
 
+/* 0 .. m - 1 sorted by key (values 0 .. nkeys - 1), stably, into out (a counting sort;
+   start: nkeys + 1 scratch). */
+static void sort_by_key(const int64_t *key, int64_t m, int64_t nkeys, int64_t *start,
+                        int64_t *out)
+{
+    for (int64_t c = 0; c <= nkeys; ++c)
+        start[c] = 0;
+    for (int64_t v = 0; v < m; ++v)
+        ++start[key[v] + 1];
+    for (int64_t c = 0; c < nkeys; ++c)
+        start[c + 1] += start[c];
+    for (int64_t v = 0; v < m; ++v)
+        out[start[key[v]]++] = v;
+}
+
 /* The colours of the movable vertices and their star entries (_dvr.vertex_colours_graph
    and _dvr._TetStars on one rank). csub (k, 4): the cells' corners in the numbering of the
    m movable vertices, -1 for the others; order: the vertices by decreasing priority.
@@ -756,16 +771,9 @@ int64_t dvr_colour(const int64_t *csub, int64_t k, int64_t m, const double *prio
         rnd[v] = r;
         nrounds = r + 1 > nrounds ? r + 1 : nrounds;
     }
-    /* the vertices by round (counting sort), then first fit */
+    /* the vertices by round, then first fit */
     int64_t ncol = 0;
-    for (int64_t r = 0; r <= nrounds; ++r)
-        tmp[r] = 0;
-    for (int64_t v = 0; v < m; ++v)
-        ++tmp[rnd[v] + 1];
-    for (int64_t r = 0; r < nrounds; ++r)
-        tmp[r + 1] += tmp[r];
-    for (int64_t v = 0; v < m; ++v)
-        byrnd[tmp[rnd[v]]++] = v;
+    sort_by_key(rnd, m, nrounds, tmp, byrnd);
     for (int64_t i = 0; i < m; ++i)
     {
         int64_t v = byrnd[i];
@@ -784,16 +792,8 @@ int64_t dvr_colour(const int64_t *csub, int64_t k, int64_t m, const double *prio
         colour[v] = c;
         ncol = c + 1 > ncol ? c + 1 : ncol;
     }
-    /* the entries by colour, vertex, cell */
-    int64_t *cstart = tmp; /* the vertices by colour */
-    for (int64_t c = 0; c <= ncol; ++c)
-        cstart[c] = 0;
-    for (int64_t v = 0; v < m; ++v)
-        ++cstart[colour[v] + 1];
-    for (int64_t c = 0; c < ncol; ++c)
-        cstart[c + 1] += cstart[c];
-    for (int64_t v = 0; v < m; ++v)
-        byrnd[cstart[colour[v]]++] = v;
+    /* the entries by colour, vertex, cell (byrnd: the vertices by colour) */
+    sort_by_key(colour, m, ncol, tmp, byrnd);
     int64_t n = 0;
     for (int64_t i = 0; i < m; ++i)
     {

@@ -237,6 +237,7 @@ def lagrange_geometry(msh: dmesh.Mesh, element: fem.CoordinateElement) -> dmesh.
     x[:n_own][: gmap.size_local] = xg[: gmap.size_local]
     x[ghost_off[0] : ghost_off[1]] = xg[gmap.size_local : gmap.size_local + gmap.num_ghosts]
     kernels = relax_kernels()
+    gv64 = np.ascontiguousarray(gv, dtype=np.int64)  # (the kernel's)
     for d in range(1, tdim + 1):
         imap, n = blocks[d]
         if not n:
@@ -247,7 +248,6 @@ def lagrange_geometry(msh: dmesh.Mesh, element: fem.CoordinateElement) -> dmesh.
         shared = x[ghost_off[d] : ghost_off[d + 1]]
         if kernels is not None:  # the operations below in C, one pass over the entities
             ffi, key = kernels.ffi, np.ascontiguousarray(keys[d - 1], dtype=np.float64)
-            gv64 = np.ascontiguousarray(gv, dtype=np.int64)
             e2v = np.ascontiguousarray(e2v, dtype=np.int32)
             kernels.lib.entity_nodes(
                 pointer(ffi, e2v, "int32_t"), len(e2v), d + 1, pointer(ffi, gv64, "int64_t"),

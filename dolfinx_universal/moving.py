@@ -199,7 +199,8 @@ class MovingDomain:
         self.active_cells = np.empty(0, dtype=np.int32)
         """Cells of ``T_h^sub`` (process-local, owned and ghost)."""
         self._cells = np.arange(len(self._c2v), dtype=np.int32)
-        self._kept_bins: tuple[npt.NDArray[np.bool_], npt.NDArray[np.int64]] | None = None
+        # tetrahedra: the dihedral histogram of the owned kept cells (background angles)
+        self._kept_histogram = np.zeros(len(tet.DIHEDRAL_BIN_EDGES) - 1, dtype=np.int64)
         self._active_tags: dmesh.MeshTags | None = self._tags()
         self.steps: list[StepReport] = []
         self._coverage: tuple[SizeField, npt.NDArray[np.float64], int, float | None] | None = None
@@ -415,7 +416,8 @@ class MovingDomain:
         band = sm.near_cells
         near = np.zeros(len(c2v), dtype=bool)
         near[band[any_rows((sm.moved | sm.on_gamma)[c2v[band]])]] = True
-        redo = np.flatnonzero(near | self._dirty | (sm.kept != self._kept))
+        flip = sm.kept != self._kept  # cells entering or leaving the domain
+        redo = np.flatnonzero(near | self._dirty | flip)
         cells = c2v[redo]
         kept = sm.kept[redo]
         cut = np.flatnonzero(kept & positively_cut(sm.sign, cells))
@@ -480,6 +482,11 @@ class MovingDomain:
         x[rows, : self.tdim] = nodes[order].reshape(-1, self.tdim)
         rows = np.concatenate([touched, rows])
         self._sync_ghost_nodes(rows, x)
+        if self.tdim == 3:
+            owned = np.flatnonzero(flip[: self._nco])
+            kept_now = sm.kept[owned]
+            self._kept_histogram += self._histogram(owned[kept_now])
+            self._kept_histogram -= self._histogram(owned[~kept_now])
         self._dirty, self._kept = near, sm.kept
         self.active.x.array[self._cell_dof[redo]] = kept.astype(np.float64)
         self.active_cells = np.flatnonzero(sm.kept).astype(np.int32)
@@ -648,7 +655,7 @@ class MovingDomain:
                 rep["radius_ratio_min"] = min(rep["radius_ratio_min"], ext("rr", np.min, 1.0))
                 rep["mean_ratio_min"] = min(rep["mean_ratio_min"], ext("mr", np.min, 1.0))
                 rep["min_volume_ratio"] = min(rep["min_volume_ratio"], 1.0)
-                hist = self._kept_histogram(kept) - self._histogram(near_kept[~plain])
+                hist = self._kept_histogram - self._histogram(near_kept[~plain])
                 self.comm.Allreduce(MPI.IN_PLACE, hist, op=MPI.SUM)
                 rep["dihedral_histogram"] = [
                     int(a + c) for a, c in zip(rep["dihedral_histogram"], hist)
@@ -663,17 +670,6 @@ class MovingDomain:
         nbins = len(tet.DIHEDRAL_BIN_EDGES) - 1
         bins = self._background_quality["bins"][cells].ravel()
         return np.bincount(bins, minlength=nbins).astype(np.int64)
-
-    def _kept_histogram(self, kept: npt.NDArray[np.bool_]) -> npt.NDArray[np.int64]:
-        """:meth:`_histogram` of the owned ``kept`` cells, updated from the previous call's
-        by the cells that entered or left (few: those near Gamma)."""
-        if self._kept_bins is None:
-            self._kept_bins = (np.zeros_like(kept), self._histogram(np.empty(0, dtype=np.intp)))
-        before, hist = self._kept_bins
-        flip = np.flatnonzero(kept != before)
-        hist = hist + self._histogram(flip[kept[flip]]) - self._histogram(flip[~kept[flip]])
-        self._kept_bins = (kept.copy(), hist)
-        return hist
 
     @cached_property
     def _background_quality(self) -> dict[str, npt.NDArray[Any]]:
