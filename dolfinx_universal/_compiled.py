@@ -7,8 +7,10 @@ candidates, and those per-call costs, not the arithmetic, were most of the relax
 time. Here, on triangles, a sweep's colour passes (ratings, decisions, steps), the star
 minima and the compass candidates are C loops; on tetrahedra, each colour's visit (ascent
 directions, line searches, compass, the slides' candidates and their exact ratings), the
-colouring and the set-up of the stars. Two kernels compute affine geometry nodes instead:
-those a moving update rewrites, each once, and the entity nodes of a degree-q geometry.
+colouring and the set-up of the stars. Others build curved geometries: the affine nodes a
+moving update rewrites (each once), the entity nodes and the dofmap of a degree-q geometry,
+the curved map's affine images and blend on tetrahedra, the distinct points it projects and
+the writes of the curved cells' nodes.
 
 The kernels evaluate the same floating-point operations in the same order as the numpy
 code they replace (no contraction into fused multiply-adds, ``-ffp-contract=off``; square
@@ -883,6 +885,184 @@ int64_t affine_nodes(const int64_t *redo, int64_t m, const int32_t *dofmap, int6
         }
     }
     return n;
+}
+
+/* The affine images out (m, np, 3) of the np barycentric points w (rows of nv <= 4) in the m
+   cells (rows of nv vertex indices into src, rows of 3): each sum from 0.0 over the
+   vertices in order, as numpy's einsum sums it (_curved_tet.map_nodes). */
+void contract_cells(const int64_t *cells, int64_t m, int64_t nv, const double *w, int64_t np,
+                    const double *src, double *out)
+{
+    double v[4 * 3];
+    for (int64_t i = 0; i < m; ++i)
+    {
+        for (int64_t k = 0; k < nv; ++k)
+            for (int64_t d = 0; d < 3; ++d)
+                v[k * 3 + d] = src[cells[i * nv + k] * 3 + d];
+        double *o = out + i * np * 3;
+        for (int64_t p = 0; p < np; ++p)
+        {
+            const double *wp = w + p * nv;
+            for (int64_t d = 0; d < 3; ++d)
+            {
+                double acc = 0.0;
+                for (int64_t k = 0; k < nv; ++k)
+                    acc += wp[k] * v[k * 3 + d];
+                o[p * 3 + d] = acc;
+            }
+        }
+    }
+}
+
+/* The blend of _curved_tet.map_nodes for the m cells rows (of cells, nv vertices each) of
+   one pattern: delta_r = pi[i, r] - (affine image under y of points[r]) for its nr points,
+   then node p of the cell in nodes (rows of np nodes of 3) becomes pi[i, direct[p]] where
+   direct[p] >= 0, else itself plus the sum from 0.0 of its terms w * delta_r (term_r,
+   term_w from start[p] to start[p + 1], r increasing: the nonzero weights of the pattern;
+   the zero ones add 0.0, which changes no sum). delta: scratch of nr * 3. */
+void blend_nodes(const int64_t *rows, int64_t m, const int64_t *cells, int64_t nv,
+                 const double *y, const double *points, int64_t nr, const double *pi,
+                 int64_t np, const int64_t *direct, const int64_t *start,
+                 const int64_t *term_r, const double *term_w, double *nodes, double *delta)
+{
+    double v[4 * 3];
+    for (int64_t i = 0; i < m; ++i)
+    {
+        for (int64_t k = 0; k < nv; ++k)
+            for (int64_t d = 0; d < 3; ++d)
+                v[k * 3 + d] = y[cells[rows[i] * nv + k] * 3 + d];
+        const double *q = pi + i * nr * 3;
+        for (int64_t r = 0; r < nr; ++r)
+            for (int64_t d = 0; d < 3; ++d)
+            {
+                double acc = 0.0;
+                for (int64_t k = 0; k < nv; ++k)
+                    acc += points[r * nv + k] * v[k * 3 + d];
+                delta[r * 3 + d] = q[r * 3 + d] - acc;
+            }
+        double *o = nodes + rows[i] * np * 3;
+        for (int64_t p = 0; p < np; ++p)
+        {
+            if (direct[p] >= 0)
+            {
+                for (int64_t d = 0; d < 3; ++d)
+                    o[p * 3 + d] = q[direct[p] * 3 + d];
+                continue;
+            }
+            for (int64_t d = 0; d < 3; ++d)
+            {
+                double acc = 0.0;
+                for (int64_t t = start[p]; t < start[p + 1]; ++t)
+                    acc += term_w[t] * delta[term_r[t] * 3 + d];
+                o[p * 3 + d] = o[p * 3 + d] + acc;
+            }
+        }
+    }
+}
+
+/* Writes the nodes (blocks of ndofs rows of gdim) of blocks which[i] into the rows of 3 of
+   x that the dofmap (rows of ndofs) gives cell cells[i], in order i = 0..m-1 (a later
+   write of a shared node wins, as in numpy's assignment). */
+void write_cell_nodes(const int64_t *cells, const int64_t *which, int64_t m,
+                      const int32_t *dofmap, int64_t ndofs, const double *nodes, int64_t gdim,
+                      double *x)
+{
+    for (int64_t i = 0; i < m; ++i)
+    {
+        const int32_t *dofs = dofmap + cells[i] * ndofs;
+        const double *v = nodes + which[i] * ndofs * gdim;
+        for (int64_t p = 0; p < ndofs; ++p)
+            for (int64_t d = 0; d < gdim; ++d)
+                x[(int64_t)dofs[p] * 3 + d] = v[p * gdim + d];
+    }
+}
+
+/* The distinct rows (bitwise) of x (n < 2^31 rows of dim <= 4 doubles), by open addressing
+   in table (size a power of 2 above n, filled with -1): first lists the first row of each in
+   order of appearance, inverse[i] the position of row i's in first. Returns their number
+   (_geometry.project_together). */
+int64_t distinct_rows(const double *x, int64_t n, int64_t dim, int32_t *table, int64_t size,
+                      int64_t *first, int64_t *inverse)
+{
+    int64_t count = 0;
+    for (int64_t i = 0; i < n; ++i)
+    {
+        uint64_t h = 0x9E3779B97F4A7C15ull;
+        for (int64_t d = 0; d < dim; ++d)
+        {
+            uint64_t b;
+            memcpy(&b, x + i * dim + d, sizeof b);
+            h = (h ^ b) * 0xBF58476D1CE4E5B9ull;
+            h ^= h >> 31;
+        }
+        int64_t slot = (int64_t)(h & (uint64_t)(size - 1));
+        for (;;)
+        {
+            int64_t j = table[slot];
+            if (j < 0)
+            {
+                table[slot] = (int32_t)i;
+                first[count] = i;
+                inverse[i] = count++;
+                break;
+            }
+            if (memcmp(x + j * dim, x + i * dim, dim * sizeof(double)) == 0)
+            {
+                inverse[i] = inverse[j];
+                break;
+            }
+            slot = (slot + 1) & (size - 1);
+        }
+    }
+    return count;
+}
+
+/* The slot columns of a degree-q dofmap (_lagrange.lagrange_geometry): row i of dofmap
+   (width columns, from column nv) is the row of slots (width - nv columns) of the code of
+   cell i's vertices c2v (nv each), sum over i < j of nv^i where gv[c2v[i]] > gv[c2v[j]],
+   else nv^j (_lagrange._code). */
+void dofmap_slots(int64_t m, int64_t nv, const int32_t *c2v, const int64_t *gv,
+                  const int32_t *slots, int32_t *dofmap, int64_t width)
+{
+    int64_t pw[5] = {1, 0, 0, 0, 0};
+    for (int64_t k = 1; k < nv; ++k)
+        pw[k] = pw[k - 1] * nv;
+    int64_t ns = width - nv;
+    for (int64_t c = 0; c < m; ++c)
+    {
+        int64_t g[4];
+        for (int64_t k = 0; k < nv; ++k)
+            g[k] = gv[c2v[c * nv + k]];
+        int64_t code = 0;
+        for (int64_t i = 0; i < nv; ++i)
+            for (int64_t j = i + 1; j < nv; ++j)
+                code += g[i] > g[j] ? pw[i] : pw[j];
+        const int32_t *row = slots + code * ns;
+        int32_t *out = dofmap + c * width + nv;
+        for (int64_t k = 0; k < ns; ++k)
+            out[k] = row[k];
+    }
+}
+
+/* Adds (add = 1) or writes the first node of each of the ne entities per cell conn (rows
+   of ne; NULL: entity c of cell c) to its n columns from column of the m rows of dofmap
+   (width columns): n e + own for an owned entity (e < size), n e + ghost else
+   (_lagrange.lagrange_geometry's first_node). */
+void dofmap_block(int64_t m, const int32_t *conn, int64_t ne, int64_t n, int64_t size,
+                  int64_t own, int64_t ghost, int32_t *dofmap, int64_t width, int64_t column,
+                  int64_t add)
+{
+    for (int64_t c = 0; c < m; ++c)
+    {
+        int32_t *out = dofmap + c * width + column;
+        for (int64_t j = 0; j < ne; ++j)
+        {
+            int64_t e = conn ? conn[c * ne + j] : c;
+            int32_t base = (int32_t)(n * e + (e < size ? own : ghost));
+            for (int64_t k = 0; k < n; ++k)
+                out[j * n + k] = add ? out[j * n + k] + base : base;
+        }
+    }
 }
 
 /* The nodes of n entities of nv vertices (_lagrange.lagrange_geometry): each entity's

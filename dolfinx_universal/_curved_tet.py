@@ -42,6 +42,7 @@ import numpy as np
 import numpy.typing as npt
 from dolfinx import la
 
+from ._compiled import pointer, relax_kernels
 from ._geometry import Float, Int, lagrange_element, project_together
 
 __all__ = ["LOCAL_EDGES", "gamma_entities", "map_nodes", "reference_nodes"]
@@ -139,6 +140,30 @@ def gamma_entities(
     edges = np.zeros((len(c2v), 6), dtype=bool)
     edges[two] = ev.array[c2e[cells[two]]] > 0
     return face, edges
+
+
+@lru_cache(maxsize=512)
+def _terms(degree: int, d: int, mask: int) -> tuple[Int, Int, Float]:
+    """The nonzero weights of :func:`_program`'s pattern by node (compressed rows):
+    ``start (p + 1,)``, their points ``(t,)`` (increasing in each row) and values ``(t,)``."""
+    weights = _program(degree, d, mask)[2]
+    node, r = np.nonzero(weights)
+    start = np.searchsorted(node, np.arange(len(weights) + 1)).astype(np.int64)
+    return start, r.astype(np.int64), np.ascontiguousarray(weights[node, r])
+
+
+def _affine(w: Float, cells: Int, x: Float, kernels) -> Float:
+    """:func:`_contract` ``(w, x[cells])``, ``(m, p, 3)``: a C loop where the kernels are
+    built (``cells`` int64 and ``x`` float64, C-contiguous; the same sums, bitwise)."""
+    if kernels is None:
+        return np.ascontiguousarray(_contract(w, x[cells]))
+    out = np.empty((len(cells), len(w), 3))
+    ffi, w = kernels.ffi, np.ascontiguousarray(w)
+    kernels.lib.contract_cells(
+        pointer(ffi, cells, "int64_t"), len(cells), cells.shape[1], pointer(ffi, w, "double"),
+        len(w), pointer(ffi, x, "double"), pointer(ffi, out, "double"),
+    )  # fmt: skip
+    return out
 
 
 @lru_cache(maxsize=512)
@@ -271,24 +296,41 @@ def map_nodes(
     -------
     Node coordinates ``(m, ndofs, 3)`` in DOLFINx's node order.
     """
+    kernels = relax_kernels()
     lam = reference_nodes(degree)
-    yc = y[cells]  # (m, 4, 3)
-    sc = x_background[cells] if kind == "G" else yc  # the corners whose faces are projected
-    nodes = np.ascontiguousarray(_contract(lam, yc))  # affine images
+    cells = np.ascontiguousarray(cells, dtype=np.int64)
+    y = np.ascontiguousarray(y, dtype=np.float64)
+    # the corners whose faces are projected
+    sc = np.ascontiguousarray(x_background, dtype=np.float64) if kind == "G" else y
+    nodes = _affine(lam, cells, y, kernels)  # affine images
     mask = (edges.astype(np.int64) << np.arange(6)).sum(axis=1)
     key = (face.astype(np.int64) + 1) * 64 + mask
     groups = [(k, np.flatnonzero(key == k)) for k in np.unique(key)]
     programs = [_program(degree, int(k) // 64 - 1, int(k) % 64) for k, _ in groups]
     queries = [
-        _contract(prog[0], sc[rows]) for prog, (_, rows) in zip(programs, groups, strict=True)
+        _affine(prog[0], cells[rows], sc, kernels)
+        for prog, (_, rows) in zip(programs, groups, strict=True)
     ]
     projected = project_together(closest_point, queries, 3)
-    for (points, direct, weights), (_, rows), pi in zip(programs, groups, projected, strict=True):
+    for (points, direct, weights), (k, rows), pi in zip(programs, groups, projected, strict=True):
         if not len(points):
             continue
-        delta = pi - _contract(points, yc[rows])
-        blend = nodes[rows] + _contract(weights, delta)
-        on = direct >= 0
-        blend[:, on] = pi[:, direct[on]]
-        nodes[rows] = blend
+        if kernels is None:
+            delta = pi - _contract(points, y[cells[rows]])
+            blend = nodes[rows] + _contract(weights, delta)
+            on = direct >= 0
+            blend[:, on] = pi[:, direct[on]]
+            nodes[rows] = blend
+            continue
+        start, term_r, term_w = _terms(degree, int(k) // 64 - 1, int(k) % 64)
+        ffi, rows = kernels.ffi, rows.astype(np.int64)
+        pi, direct = np.ascontiguousarray(pi), np.ascontiguousarray(direct, dtype=np.int64)
+        kernels.lib.blend_nodes(
+            pointer(ffi, rows, "int64_t"), len(rows), pointer(ffi, cells, "int64_t"), 4,
+            pointer(ffi, y, "double"), pointer(ffi, np.ascontiguousarray(points), "double"),
+            len(points), pointer(ffi, pi, "double"), len(lam), pointer(ffi, direct, "int64_t"),
+            pointer(ffi, start, "int64_t"), pointer(ffi, term_r, "int64_t"),
+            pointer(ffi, term_w, "double"), pointer(ffi, nodes, "double"),
+            pointer(ffi, np.empty(3 * len(points)), "double"),
+        )  # fmt: skip
     return nodes

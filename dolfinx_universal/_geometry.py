@@ -14,6 +14,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from ._compiled import pointer, relax_kernels
+
 __all__ = [
     "Bool",
     "Float",
@@ -29,8 +31,10 @@ __all__ = [
     "lagrange_element",
     "norm2",
     "positive",
+    "project_together",
     "signed_areas",
     "triangle_measures",
+    "write_cell_nodes",
 ]
 
 Float = npt.NDArray[np.float64]
@@ -164,17 +168,71 @@ def rot90(v: Float) -> Float:
     return np.column_stack([-v[:, 1], v[:, 0]])
 
 
+def _distinct_rows(x: Float) -> tuple[Int, Int | None]:
+    """The first of each set of bitwise equal rows of ``x (n, dim)`` and, for every row,
+    the position of its set's among them; ``inverse = None`` where the rows are all
+    distinct or the C kernels are not built (then every row is its own)."""
+    kernels = relax_kernels()
+    n = len(x)
+    if kernels is None or n < 2 or n >= 2**31 or x.shape[1] > 4:
+        return np.arange(n), None
+    x = np.ascontiguousarray(x, dtype=np.float64)
+    size = 1 << int(2 * n - 1).bit_length()
+    table = np.full(size, -1, dtype=np.int32)
+    first, inverse = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+    ffi = kernels.ffi
+    count = kernels.lib.distinct_rows(
+        pointer(ffi, x, "double"), n, x.shape[1], pointer(ffi, table, "int32_t"), size,
+        pointer(ffi, first, "int64_t"), pointer(ffi, inverse, "int64_t"),
+    )  # fmt: skip
+    if count == n:
+        return first, None
+    return first[:count], inverse
+
+
+def write_cell_nodes(
+    x: Float, dofmap: Int, cells: Int, nodes: Float, which: Int | None = None
+) -> None:
+    """``x[dofmap[cells], :gdim] = nodes[which]`` (``nodes (k, ndofs, gdim)``, ``which``
+    default all of them in order), cell after cell (a node shared by two cells gets the
+    later one's value): a C loop where the kernels are built."""
+    m, gdim = len(cells), nodes.shape[-1]
+    which = np.arange(m) if which is None else which
+    kernels = relax_kernels()
+    if kernels is None or not (x.flags.c_contiguous and x.shape[1] == 3):
+        x[dofmap[cells].ravel(), :gdim] = nodes[which].reshape(-1, gdim)
+        return
+    ffi = kernels.ffi
+    cells, which = (np.ascontiguousarray(a, dtype=np.int64) for a in (cells, which))
+    dofmap = np.ascontiguousarray(dofmap, dtype=np.int32)
+    nodes = np.ascontiguousarray(nodes, dtype=np.float64)
+    kernels.lib.write_cell_nodes(
+        pointer(ffi, cells, "int64_t"), pointer(ffi, which, "int64_t"), m,
+        pointer(ffi, dofmap, "int32_t"), dofmap.shape[1], pointer(ffi, nodes, "double"), gdim,
+        pointer(ffi, x, "double"),
+    )  # fmt: skip
+
+
 def project_together(
     closest_point: Callable[[Float], Float], queries: list[Float], dim: int
 ) -> list[Float]:
     """Closest points of the points of every array of ``queries`` (shapes ``(..., dim)``),
     by one call of ``closest_point`` (none when there is no point); each result has the
     shape of its query. A point's projection does not depend on the other points of the
-    call, so grouping the queries of several cells changes no value."""
+    call, so grouping the queries of several cells changes no value, and neither does
+    projecting each distinct point once (bitwise equal rows: a node or a blend point on an
+    entity shared by several cells is queried by each; on the curved tetrahedra of a torus
+    154e3 queries hold 67e3 distinct points)."""
     if not queries:
         return []
     flat = np.concatenate([q.reshape(-1, dim) for q in queries])
-    proj = np.asarray(closest_point(flat), dtype=np.float64) if len(flat) else flat
+    first, inverse = _distinct_rows(flat)
+    if not len(flat):
+        proj = flat
+    elif inverse is None:
+        proj = np.asarray(closest_point(flat), dtype=np.float64)
+    else:
+        proj = np.asarray(closest_point(flat[first]), dtype=np.float64)[inverse]
     ends = np.cumsum([q.size // dim for q in queries])[:-1]
     return [p.reshape(q.shape) for p, q in zip(np.split(proj, ends), queries, strict=True)]
 

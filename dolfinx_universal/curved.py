@@ -20,7 +20,14 @@ from dolfinx import fem
 from dolfinx import mesh as dmesh
 
 from . import _curved_tet
-from ._geometry import Bool, Float, any_rows, lagrange_element, project_together
+from ._geometry import (
+    Bool,
+    Float,
+    any_rows,
+    lagrange_element,
+    project_together,
+    write_cell_nodes,
+)
 from ._lagrange import lagrange_geometry
 from .classify import positively_cut
 from .conform import IMMERSED, ConformingMesh
@@ -422,7 +429,7 @@ def curved_mesh(
     y = np.zeros((len(cm.sign), tdim))
     y[cells[pc]] = corners
     nodes = collective_call(msh.comm, "the curved map", cell_map, cells[pc], y)
-    msh.geometry.x[dofmap[pc].ravel(), :tdim] = nodes.reshape(-1, tdim)
+    write_cell_nodes(msh.geometry.x, dofmap, pc, nodes)
 
     ratio = (
         jacobian_ratio(nodes, degree, threshold=min_ratio) if degree > 1 and len(pc) else np.ones(0)

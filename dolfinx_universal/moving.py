@@ -20,7 +20,7 @@ from dolfinx import mesh as dmesh
 from . import _curved_tet
 from . import _tetrahedron as tet
 from ._compiled import pointer, relax_kernels
-from ._geometry import all_rows, any_rows
+from ._geometry import all_rows, any_rows, write_cell_nodes
 from .boundaries import Boundary
 from .classify import interior_angles, positively_cut
 from .conform import UniversalMesh
@@ -478,8 +478,8 @@ class MovingDomain:
         x = self.mesh.geometry.x
         touched = self._write_affine_nodes(redo, sm.y, x)
         order = np.argsort(kept[curve], kind="stable")
+        write_cell_nodes(x, self._dofmap, redo[curve[order]], nodes, order)
         rows = self._dofmap[redo[curve[order]]].ravel()
-        x[rows, : self.tdim] = nodes[order].reshape(-1, self.tdim)
         rows = np.concatenate([touched, rows])
         self._sync_ghost_nodes(rows, x)
         if self.tdim == 3:

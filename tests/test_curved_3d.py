@@ -82,6 +82,52 @@ def test_nodes_on_gamma_and_shared_nodes_agree(conformed, name, degree):
     assert cv.min_jacobian_ratio > 0.4
 
 
+@pytest.mark.parametrize("name", ["sphere", "torus"])
+def test_compiled_curved_map_is_numpy_s(conformed, name, monkeypatch):
+    """curved_mesh with the C kernels (the affine images, the blend, each distinct point
+    projected once, the node writes, the degree-q dofmap) and with the numpy code: bitwise
+    the same geometry and dofmap, at q = 2-4 and for the maps I (the background's points
+    projected) and I~."""
+    from dolfinx_universal._compiled import relax_kernels
+
+    cm = conformed(name)
+    cases = [(q, kind) for q in (2, 3, 4) for kind in ("I", "I~")]
+
+    def arrays():  # copies: no mesh outlives its call
+        out = []
+        for q, kind in cases:
+            g = du.curved_mesh(cm, q, kind).mesh.geometry
+            out.append((g.x.copy(), g.dofmaps[0].copy()))
+        return out
+
+    assert relax_kernels() is not None
+    compiled = arrays()
+    monkeypatch.setenv("DOLFINX_UNIVERSAL_COMPILED", "0")
+    assert relax_kernels() is None
+    for (x, dofmap), (x_np, dofmap_np), case in zip(compiled, arrays(), cases, strict=True):
+        np.testing.assert_array_equal(x, x_np, err_msg=str(case))
+        np.testing.assert_array_equal(dofmap, dofmap_np, err_msg=str(case))
+
+
+def test_distinct_rows():
+    """Each set of bitwise equal rows once, in order of appearance; -0.0 and 0.0 differ."""
+    from dolfinx_universal._geometry import _distinct_rows
+
+    rng = np.random.default_rng(3)
+    base = rng.random((50, 3))
+    base[7] = [0.0, 1.0, 2.0]
+    base[8] = [-0.0, 1.0, 2.0]
+    x = base[rng.integers(0, 50, 400)]
+    first, inverse = _distinct_rows(x)
+    assert inverse is not None
+    np.testing.assert_array_equal(x[first][inverse], x)
+    keys = x.view(np.dtype((np.void, 24))).ravel()
+    assert len(first) == len(np.unique(keys)) == len(np.unique(keys[first]))
+    assert (np.diff(first) > 0).all() and first[0] == 0
+    first, inverse = _distinct_rows(base)  # all distinct
+    assert inverse is None and np.array_equal(first, np.arange(50))
+
+
 def test_which_cells_curve(conformed):
     """Cells with a positive face and cells touching Gamma_h by an edge are curved (their
     nodes on Gamma_h follow the projection of the straight background points); cells

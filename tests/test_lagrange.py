@@ -92,17 +92,23 @@ def test_each_global_node_has_one_position(cell, mode):
 @pytest.mark.mpi
 @pytest.mark.parametrize("cell", list(DEGREES))
 def test_compiled_nodes_are_numpy_s(cell, monkeypatch):
-    """The entity nodes from the C kernel and from the numpy code: bitwise the same (the
-    same sums in the same order), owned and ghost, at every degree."""
+    """The entity nodes and the dofmap from the C kernels and from the numpy code: bitwise
+    the same (the same sums in the same order), owned and ghost, at every degree."""
     from dolfinx_universal._compiled import relax_kernels
 
     msh = distorted(cell)
+
+    def geometry(degree):
+        g = both(msh, degree)[1].geometry
+        return g.x.copy(), g.dofmaps[0].copy(), np.array(g.input_global_indices)
+
     assert relax_kernels() is not None
-    compiled = [both(msh, degree)[1].geometry.x.copy() for degree in DEGREES[cell]]
+    compiled = [geometry(degree) for degree in DEGREES[cell]]
     monkeypatch.setenv("DOLFINX_UNIVERSAL_COMPILED", "0")
     assert relax_kernels() is None
-    for degree, x in zip(DEGREES[cell], compiled, strict=True):
-        np.testing.assert_array_equal(x, both(msh, degree)[1].geometry.x, err_msg=f"q={degree}")
+    for degree, arrays in zip(DEGREES[cell], compiled, strict=True):
+        for a, b in zip(arrays, geometry(degree), strict=True):
+            np.testing.assert_array_equal(a, b, err_msg=f"q={degree}")
 
 
 @pytest.mark.mpi
