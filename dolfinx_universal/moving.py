@@ -478,9 +478,9 @@ class MovingDomain:
         x = self.mesh.geometry.x
         touched = self._write_affine_nodes(redo, sm.y, x)
         order = np.argsort(kept[curve], kind="stable")
-        write_cell_nodes(x, self._dofmap, redo[curve[order]], nodes, order)
-        rows = self._dofmap[redo[curve[order]]].ravel()
-        rows = np.concatenate([touched, rows])
+        written = redo[curve[order]]
+        write_cell_nodes(x, self._dofmap, written, nodes, order)
+        rows = np.concatenate([touched, self._dofmap[written].ravel()])
         self._sync_ghost_nodes(rows, x)
         if self.tdim == 3:
             owned = np.flatnonzero(flip[: self._nco])
