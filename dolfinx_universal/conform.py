@@ -325,6 +325,14 @@ class UniversalMesh:
         background onto itself (a half turn about a symmetry axis of the lattice, a
         translation by a lattice period) maps the relaxed mesh onto the relaxed mesh, to
         rounding: a periodic motion gives periodic meshes and forces.
+    mirror
+        A line ``(point, normal)`` about which the background and the domains are
+        symmetric (triangles only; e.g. a background of
+        :func:`~dolfinx_universal.graded.graded_mesh` with the same ``mirror``): the
+        relaxation's choices are made symmetric under the reflection too
+        (:attr:`~dolfinx_universal.relax.RelaxFrame.mirror`), so that the conforming mesh
+        is the mirror image of itself where the background is, to rounding. ``M_h`` is
+        symmetric without it; the relaxation's colours and search directions are not.
     """
 
     def __init__(
@@ -340,6 +348,7 @@ class UniversalMesh:
         on_low_quality: str = "warn",
         relax: bool = True,
         relax_frame: str = "world",
+        mirror: tuple[npt.ArrayLike, npt.ArrayLike] | None = None,
     ) -> None:
         _check_background(background)
         eta, min_angle = float(eta), float(min_angle)
@@ -355,6 +364,9 @@ class UniversalMesh:
         if relax_frame not in ("world", "body"):
             raise ValueError(f"relax_frame must be 'world' or 'body', got {relax_frame!r}")
         self.relax_frame = relax_frame
+        self._mirror = _mirror_frame(mirror, background.topology.dim)
+        if self._mirror is not None and relax_frame != "world":
+            raise ValueError("a mirror needs relax_frame='world'")
         self.background = background
         self.eta, self.min_angle, self.on_low_quality = eta, min_angle, on_low_quality
         self.relax = bool(relax)
@@ -637,7 +649,7 @@ class UniversalMesh:
         from .boundaries import RigidMotion
 
         if self.relax_frame == "world":
-            return None
+            return self._mirror
         parts = list(getattr(boundary, "bodies", ())) + [getattr(boundary, "container", None)]
         for part in [boundary, *parts]:
             if isinstance(part, RigidMotion):  # frame coordinates (x - c - t) @ R
@@ -799,11 +811,37 @@ class UniversalMesh:
         )
 
 
+def _mirror_frame(
+    mirror: tuple[npt.ArrayLike, npt.ArrayLike] | None, tdim: int
+) -> RelaxFrame | None:
+    """The relaxation frame of a mirror line ``(point, normal)``: origin on the line, second
+    axis its unit normal."""
+    if mirror is None:
+        return None
+    if tdim != 2:
+        raise ValueError("a mirror is supported on triangles only")
+    point = np.asarray(mirror[0], dtype=np.float64).reshape(-1)
+    normal = np.asarray(mirror[1], dtype=np.float64).reshape(-1)
+    length = float(np.hypot(*normal)) if len(normal) == 2 else 0.0
+    if (
+        len(point) != 2
+        or not np.all(np.isfinite(point))
+        or not (length > 0 and np.isfinite(length))
+    ):
+        raise ValueError(
+            f"mirror must be (point, normal) of two finite numbers each, normal nonzero: {mirror}"
+        )
+    n = normal / length
+    rotation = np.array([[n[1], n[0]], [-n[0], n[1]]])  # columns: the line's direction, n
+    return RelaxFrame(rotation, point, mirror=1)
+
+
 def conform(
     background: dmesh.Mesh, boundary: Boundary, *, R_r: float | None = None,
     alpha: float | None = None, eta: float = 0.2, relaxation_factor: float = 3.0,
     local_size: bool = False, min_angle: float = 10.0, on_low_quality: str = "warn",
     relax: bool = True, relax_frame: str = "world",
+    mirror: tuple[npt.ArrayLike, npt.ArrayLike] | None = None,
 ) -> ConformingMesh:  # fmt: skip
     """Conform a background triangulation to the domain bounded by ``boundary``.
 
@@ -816,7 +854,9 @@ def conform(
         The background mesh, as in :class:`UniversalMesh`.
     boundary
         The domain (signs, closest points, normals).
-    R_r, alpha, eta, relaxation_factor, local_size, min_angle, on_low_quality, relax, relax_frame
+    R_r, alpha, eta, relaxation_factor, local_size, min_angle, on_low_quality, relax
+        Options of :class:`UniversalMesh`.
+    relax_frame, mirror
         Options of :class:`UniversalMesh`.
 
     Returns
@@ -832,6 +872,6 @@ def conform(
     um = UniversalMesh(
         background, R_r=R_r, alpha=alpha, eta=eta, relaxation_factor=relaxation_factor,
         local_size=local_size, min_angle=min_angle, on_low_quality=on_low_quality, relax=relax,
-        relax_frame=relax_frame,
+        relax_frame=relax_frame, mirror=mirror,
     )  # fmt: skip
     return um.conform(boundary)

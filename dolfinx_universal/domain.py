@@ -20,7 +20,7 @@ from .boundaries import Boundary, Domain
 from .conform import IMMERSED, ConformingMesh, conform
 from .curved import MAPS, CurvedMesh, curved_mesh
 from .dimensions import cell_kernels
-from .graded import EDGE_FACTOR, graded_mesh
+from .graded import EDGE_FACTOR, graded_mesh, mirror_axis
 from .graded_tet import BandSizeField
 from .jacobian import check_degree
 from .quality import quality_report
@@ -379,6 +379,7 @@ def mesh_domain(
     relax: bool = True,
     tet_background: str = "auto",
     size_field: SizeFunction | None = None,
+    mirror: tuple[npt.ArrayLike, npt.ArrayLike] | None = None,
 ) -> MeshedDomain:
     """Mesh the domain bounded by ``boundary``: the one call a user makes (collective).
 
@@ -457,6 +458,20 @@ def mesh_domain(
         octree (``tet_background="auto"`` takes it): each component's uniform band takes
         the smallest value of the field on the component's samples, the field counts as
         given beyond the bands.
+    mirror
+        Curves only: a line ``(point, normal)`` normal to a coordinate axis, about which
+        the domain (and ``size_field``) is symmetric near Gamma, e.g. the horizontal line
+        through a cylinder's centre in a channel: the mesh is made the mirror image of
+        itself there, to rounding. The background's root cells are made symmetric about
+        the line (rows of them on each side, as many as the box allows, at most ``h``
+        / :data:`~dolfinx_universal.graded.EDGE_FACTOR` and smaller where that needs it;
+        :func:`~dolfinx_universal.graded.graded_mesh`), its leaves split alike on both
+        sides and tiled below the line with the stencils' mirror images; the relaxation's
+        choices are made symmetric (:class:`~dolfinx_universal.conform.UniversalMesh`), and
+        a failed check refines at its places' images too. A quantity that is a difference
+        of the two halves' contributions (the lift on a body in a nearly symmetric flow)
+        then gets discretisation errors that largely cancel, as on a symmetric
+        body-fitted mesh.
 
     Returns
     -------
@@ -487,6 +502,10 @@ def mesh_domain(
         raise ValueError(f"size_field must be a callable of points, got {size_field!r}")
     if int(max_rounds) != max_rounds or max_rounds < 0:
         raise ValueError(f"max_rounds must be a non-negative integer, got {max_rounds}")
+    if mirror is not None:
+        if gdim != 2:
+            raise ValueError("mirror is supported for curves only")
+        mirror_axis(mirror, 2)  # (ValueError unless normal to an axis)
     if tet_background not in TET_BACKGROUNDS:
         raise ValueError(
             f"unknown tet_background {tet_background!r}: choose one of {TET_BACKGROUNDS}"
@@ -503,6 +522,7 @@ def mesh_domain(
         )  # fmt: skip
     else:
         plan = _GradedPlan.create(comm, boundary, h, degree, box, relaxation_factor, size_factor)
+        plan.mirror = mirror
         if size_field is not None:
             plan.user = _UserSize(comm, size_field, plan.box)
     timings["sizing"] += time.perf_counter() - t
@@ -519,6 +539,7 @@ def mesh_domain(
             min_angle=min_angle,
             on_low_quality="raise",
             relax=relax,
+            mirror=mirror,
         )
         timings["conform"] += time.perf_counter() - t
         t = time.perf_counter()
@@ -746,6 +767,8 @@ class _GradedPlan(_Plan):
     name = "graded"
     user: _UserSize | None = None
     """The user's ``size_field``, in the minimum with :attr:`field`."""
+    mirror: tuple[npt.ArrayLike, npt.ArrayLike] | None = None
+    """The mirror line of :func:`mesh_domain`, or ``None``."""
 
     def __init__(self, box: Float, field_: SizeField, feature: Float, rho: Float, h: float):
         self.box, self.field, self.feature, self.rho, self.h = box, field_, feature, rho, h
@@ -787,10 +810,20 @@ class _GradedPlan(_Plan):
 
     def background(self, comm: MPI.Comm) -> dmesh.Mesh:
         return graded_mesh(
-            comm, self.box, self._size(), max_size=self.h, root_size=self.h / EDGE_FACTOR
+            comm,
+            self.box,
+            self._size(),
+            max_size=self.h,
+            root_size=self.h / EDGE_FACTOR,
+            mirror=self.mirror,
         )
 
     def refine(self, places: Float) -> None:
+        if self.mirror is not None:  # and at the places' images
+            axis, a = mirror_axis(self.mirror, 2)
+            images = places.copy()
+            images[:, axis] = 2.0 * a - images[:, axis]
+            places = np.vstack([places, images])
         self.field = self.field.refined(places, 0.5 * self._size()(places))
 
 

@@ -246,6 +246,15 @@ class RelaxFrame(NamedTuple):
     """Rotation matrix ``(gdim, gdim)``: frame axes in world coordinates (its columns)."""
     origin: Float
     """Origin ``(gdim,)`` of the frame in world coordinates."""
+    mirror: int | None = None
+    """A frame axis normal to a mirror plane through the origin (or ``None``): the choices
+    are then also symmetric under the reflection ``y_mirror -> -y_mirror``. A vertex and
+    its mirror image get one priority (up to the last bit, which orders them), the search
+    directions of the vertices on the negative side are the mirror images of those on the
+    positive side, and the vertices on the plane move in it (their slides along Gamma
+    stop): on a mirror-symmetric background and domain the relaxed mesh is symmetric, to
+    rounding, where the colouring is (vertices whose stars reach beyond the symmetric part
+    of the background may differ)."""
 
     def directions(self, d: Float) -> Float:
         """Directions ``(..., gdim)`` given in the frame, in world coordinates."""
@@ -258,10 +267,25 @@ class RelaxFrame(NamedTuple):
         differ by rounding, so they are snapped to a grid of :data:`FRAME_GRID` (a fixed
         length: the same on every rank) before hashing: equal unless a coordinate lies
         within rounding of a grid line (coordinates up to about ``1e3`` round by less than
-        ``1e-13``).
+        ``1e-13``). With a :attr:`mirror`, the hash is that of the distance to the plane
+        (and the other coordinates), its last bit replaced by the side of the plane.
         """
         y = (np.asarray(x, dtype=np.float64) - self.origin) @ self.rotation
-        return coordinate_priority(np.floor(y / FRAME_GRID + _FRAME_OFFSET))
+        if self.mirror is None:
+            return coordinate_priority(np.floor(y / FRAME_GRID + _FRAME_OFFSET))
+        side = self.side(x) > 0
+        y[:, self.mirror] = np.abs(y[:, self.mirror])
+        bits = np.ldexp(coordinate_priority(np.floor(y / FRAME_GRID + _FRAME_OFFSET)), 53)
+        return np.ldexp(2.0 * np.floor(bits / 2.0) + side, -53)
+
+    def side(self, x: Float) -> npt.NDArray[np.int64]:
+        """The side of the mirror plane of points ``x`` ``(n, gdim)``: +1, -1, and 0 within
+        :data:`FRAME_GRID` of the plane (all +1 without a mirror), ``(n,)``."""
+        x = np.asarray(x, dtype=np.float64)
+        if self.mirror is None:
+            return np.ones(len(x), dtype=np.int64)
+        y = (x - self.origin) @ self.rotation[:, self.mirror]
+        return np.where(np.abs(y) < FRAME_GRID, 0, np.sign(y)).astype(np.int64)
 
 
 FRAME_GRID = 2.0**-36
@@ -517,7 +541,7 @@ def relax_vertices(
     groups = [
         (slice(bounds[k], bounds[k + 1]), np.flatnonzero(colour == k)) for k in range(ncol)
     ]  # each colour's entries, and its vertices (with or without entries on this rank)
-    compass = _Compass(comm, sub, onto_gamma, y, normal, on_gamma, h, frame)
+    compass = _Compass(comm, sub, onto_gamma, y, normal, on_gamma, h, frame, x0)
     # A vertex is worked on below the targets and below what its background star offered.
     target = sub.reduce(ACTIVE_RATIO * stars.background_minima(x0, m), "min")
     np.minimum(target, ACTIVE_BELOW, out=target)
@@ -756,12 +780,20 @@ class _Compass:
         on_gamma: Bool,
         h: Float,
         frame: RelaxFrame | None = None,
+        x0: Float | None = None,
     ) -> None:
         self.comm, self.sub, self.onto_gamma, self.y = comm, sub, onto_gamma, y
         self.frame = frame
         verts = sub.vertices
         self.gamma = np.flatnonzero(on_gamma[verts])
         self.tangent = rot90(normal[verts[self.gamma]])  # Omega on their left
+        # With a mirror: each vertex's side of it (from its background position), the
+        # slides of the vertices on the mirror stopped, and the slides' order reversed on
+        # the negative side (the first slide of a vertex and of its image are images).
+        self.side: npt.NDArray[np.int64] | None = None
+        if frame is not None and frame.mirror is not None and x0 is not None:
+            self.side = frame.side(x0[verts])
+            self.tangent *= self.side[self.gamma, None]
         self.nrm = normal.copy()  # normals at the current positions of the vertices on Gamma
         self.step = INITIAL_STEP * h[verts]
         self.hmax = MAX_STEP * h[verts]
@@ -792,13 +824,25 @@ class _Compass:
         golden = np.pi * (3.0 - np.sqrt(5.0))
         theta = sweep * golden + 2.0 * np.pi * np.arange(DIRECTIONS) / DIRECTIONS
         dirs = np.column_stack([np.cos(theta), np.sin(theta)])
-        if self.frame is not None:
-            dirs = self.frame.directions(dirs)
-        offsets = np.concatenate(
-            [np.zeros((1, dim)), (np.asarray(STEPS)[:, None, None] * dirs).reshape(-1, dim)]
-        )
+
+        def offsets_of(dirs: Float) -> Float:
+            if self.frame is not None:
+                dirs = self.frame.directions(dirs)
+            steps = np.asarray(STEPS)[:, None, None] * dirs
+            return np.concatenate([np.zeros((1, dim)), steps.reshape(-1, dim)])
+
+        offsets = offsets_of(dirs)
         step = self.step
-        if self.kernels is None:
+        if self.side is not None:  # mirrored directions below the mirror, in it on it
+            assert self.frame is not None and self.frame.mirror is not None
+            flipped, inplane = dirs.copy(), dirs.copy()
+            flipped[:, self.frame.mirror] *= -1.0
+            inplane[:, self.frame.mirror] = 0.0
+            by_side = np.stack([offsets_of(flipped), offsets_of(inplane), offsets])
+            self.cand = cand = (
+                y[verts[act]][:, None, :] + step[act, None, None] * by_side[self.side[act] + 1]
+            )
+        elif self.kernels is None:
             self.cand = cand = y[verts[act]][:, None, :] + step[act, None, None] * offsets[None]
         else:
             size = len(act) * self.nc * dim
