@@ -50,7 +50,9 @@
 #   (`size_field`, below: fine in the cylinder's boundary layer, coarse where the flow is
 #   back to the Poiseuille profile), conformed to the circle by moving a few vertices, and
 #   curved: the boundary nodes of the degree-$q$ triangles lie on the exact circle
-#   ($q = 2$, and $q = 3$ as a variant).
+#   ($q = 2$, and $q = 3$ as a variant). The mesh is the mirror image of itself about
+#   the horizontal line through the cylinder's centre, within $0.1$ of it (`mirror`,
+#   below).
 # * **Elements.** Taylor–Hood $P_2/P_1$.
 # * **Solver.** Newton's method (PETSc SNES through
 #   {py:class}`dolfinx.fem.petsc.NonlinearProblem`, the exact Jacobian by UFL, MUMPS LU
@@ -75,7 +77,7 @@
 #
 # Run with `python demos/dfg_benchmark.py [--quick] [--out DIR]`, also under `mpirun`.
 # `--quick` runs the three coarsest levels of both degrees and the adaptive loop up to
-# their number of degrees of freedom (about 30 s; the full run about three and a half minutes).
+# their number of degrees of freedom (about 40 s; the full run about four and a half minutes).
 # Written to `DIR` (default `out/dfg_benchmark`): `summary.json` (`{"rows": [...],
 # "adaptive": [...], "theta": ...}`, one row per level and geometry degree, one per
 # adaptive round), `fields.png` (velocity magnitude and pressure near the cylinder, on the
@@ -149,9 +151,26 @@ force_scale = -2.0 / (U_mean**2 * diameter)
 # uniform: most of the degrees of freedom went to the Poiseuille flow downstream, where
 # they buy nothing. `benchmarks/dfg_vs_gmsh.py` compares both sizings with gmsh's
 # body-fitted meshes at equal numbers of degrees of freedom (table below).
+#
+# The lift is the difference of the vertical forces on the upper and the lower half of
+# the cylinder, which nearly balance (the cylinder sits only $0.005$ below the centre
+# line), and so is its discretisation error: on a mesh whose halves are mirror images,
+# the halves' errors nearly cancel too, as on gmsh's meshes, whose nodes on the circle
+# are placed symmetrically. So `mesh_domain` is given the line $y = 0.2$ as a `mirror`:
+# the background's root cells are rows of height $0.1$ on both sides of it (and $0.11$
+# at the top wall), its quadtree is split alike on both sides, the leaves below the line
+# are tiled with the stencils' mirror images, and the relaxation's choices are
+# symmetric: within $0.1$ of the line, which holds the cylinder and its wake's first
+# diameters, the mesh is its own mirror image to rounding. The size field is symmetric
+# about the line too.
 
 
 # +
+MIRROR = (centre, (0.0, 1.0))
+"""The mesh's mirror line (and that of the adaptive loop's refinement): through the
+cylinder's centre, horizontal."""
+
+
 def size_field(scale: float, reach: float = 1.0) -> Callable[[np.ndarray], np.ndarray]:
     """The demo's size field at ``scale``: fine in the cylinder's boundary layer, coarse
     where the flow is back to the Poiseuille profile (``reach`` scales its distances: the
@@ -165,8 +184,9 @@ def size_field(scale: float, reach: float = 1.0) -> Callable[[np.ndarray], np.nd
     )
 
 
-def channel_mesh(scale: float, degree: int) -> du.MeshedDomain:
-    """The curved universal mesh of the channel minus the cylinder at ``scale``."""
+def channel_mesh(scale: float, degree: int, reach: float = 1.0) -> du.MeshedDomain:
+    """The curved universal mesh of the channel minus the cylinder at ``scale`` (``reach``:
+    that of :func:`size_field`)."""
     domain = du.Domain(container=None, bodies=[du.Circle(centre, radius)])
     return du.mesh_domain(
         comm,
@@ -175,7 +195,8 @@ def channel_mesh(scale: float, degree: int) -> du.MeshedDomain:
         degree=degree,
         box=[[0.0, 0.0], [length, height]],
         size_factor=6.0 / scale,
-        size_field=size_field(scale),
+        size_field=size_field(scale, reach),
+        mirror=MIRROR,
     )
 
 
@@ -382,23 +403,16 @@ def solve_level(level: int, degree: int) -> tuple[dict, fem.Function]:
 # second per round. The loop starts from level 0's field and stops past the finest
 # level's number of degrees of freedom.
 #
-# The refinement is kept symmetric about the horizontal line through the cylinder's centre
-# (`refine_size`'s `mirror`: every marked cell also refines at its mirror image). The lift
-# is the difference of the vertical forces on the upper and the lower half of the
-# cylinder, which nearly balance: on a mesh whose halves are refined alike, their
-# discretisation errors nearly cancel too. Marked by the indicators alone, the two halves
-# drift apart (the flow is not quite symmetric, and the quadtree's pinwheel cells have no
-# mirror symmetry), and the halves' errors stop cancelling. `benchmarks/dfg_vs_gmsh.py --layers`
-# shows it: around $9 \cdot 10^4$ degrees of freedom the lift's indicators summed over
-# each half are seven to nine times its error on the graded gmsh mesh and on this demo's
-# field (numbers below).
+# The refinement is kept symmetric about the mesh's mirror line (`refine_size`'s
+# `mirror`: every marked cell also refines at its mirror image), so that the adaptive
+# meshes stay their own mirror images near the cylinder: marked by the indicators alone,
+# the two halves' refinements drift apart (the flow is not quite symmetric), and the
+# halves' errors in the lift stop cancelling (numbers below).
 
 # +
 THETA = 0.3
 """Dörfler fraction of the adaptive loop (a small fraction: many small steps, each round
 refining where the indicator is largest)."""
-MIRROR = (centre, (0.0, 1.0))
-"""The line of the loop's symmetric refinement: through the cylinder's centre, horizontal."""
 SHOWN_ROUND = 3
 """The adaptive round drawn in ``adaptive_mesh.png`` (about 6e4 dofs: the cells show)."""
 
@@ -489,6 +503,7 @@ def adaptive_mesh(field: Callable[[np.ndarray], np.ndarray], scale: float) -> du
     return du.mesh_domain(
         comm, du.Domain(container=None, bodies=[du.Circle(centre, radius)]), height / 4 * scale,
         degree=2, box=[[0.0, 0.0], [length, height]], size_factor=6.0 / scale, size_field=field,
+        mirror=MIRROR,
     )  # fmt: skip
 
 
@@ -673,94 +688,98 @@ def adaptive_table(rows: list[dict]) -> str:
 # ## What it gives
 #
 # The full run, as printed by `markdown_table` (relative errors against the reference
-# values; seconds of `mesh_domain` and of the solve, on a 2-core machine; 201 s in all,
+# values; seconds of `mesh_domain` and of the solve, on a 2-core machine; 264 s in all,
 # the adaptive loop included):
 #
 # | level | q | dofs | $c_D$ | $c_L$ | err $c_D$ | err $c_L$ | err $\Delta p$ | mesh s | solve s |
 # |---|---|---|---|---|---|---|---|---|---|
-# | 0 | 2 | 12983 | 5.5791455 | 0.01144663 | -7.0e-05 | +7.8e-02 | -9.7e-03 | 0.05 | 0.3 |
-# | 1 | 2 | 25548 | 5.5793268 | 0.01060313 | -3.7e-05 | -1.5e-03 | -5.3e-03 | 0.05 | 0.6 |
-# | 2 | 2 | 76234 | 5.5795151 | 0.01061860 | -3.6e-06 | -3.2e-05 | -1.2e-03 | 0.08 | 2.0 |
-# | 3 | 2 | 216706 | 5.5795335 | 0.01061875 | -3.2e-07 | -1.9e-05 | -4.7e-04 | 0.18 | 6.4 |
-# | 4 | 2 | 688364 | 5.5795351 | 0.01061894 | -2.7e-08 | -7.4e-07 | -1.5e-04 | 0.50 | 27.9 |
-# | 0 | 3 | 12983 | 5.5791819 | 0.01139278 | -6.3e-05 | +7.3e-02 | -9.7e-03 | 0.04 | 0.3 |
-# | 1 | 3 | 25548 | 5.5793329 | 0.01060398 | -3.6e-05 | -1.4e-03 | -5.3e-03 | 0.06 | 0.5 |
-# | 2 | 3 | 76234 | 5.5795152 | 0.01061881 | -3.6e-06 | -1.3e-05 | -1.2e-03 | 0.08 | 1.8 |
-# | 3 | 3 | 216706 | 5.5795335 | 0.01061875 | -3.1e-07 | -1.9e-05 | -4.7e-04 | 0.18 | 6.5 |
-# | 4 | 3 | 688364 | 5.5795351 | 0.01061894 | -2.7e-08 | -7.7e-07 | -1.5e-04 | 0.51 | 28.8 |
+# | 0 | 2 | 16219 | 5.5769658 | 0.01068785 | -4.6e-04 | +6.5e-03 | +6.8e-03 | 0.06 | 0.5 |
+# | 1 | 2 | 29107 | 5.5792803 | 0.01062451 | -4.6e-05 | +5.2e-04 | -5.8e-03 | 0.07 | 1.0 |
+# | 2 | 2 | 77656 | 5.5795142 | 0.01061971 | -3.8e-06 | +7.2e-05 | -7.0e-04 | 0.11 | 2.4 |
+# | 3 | 2 | 248710 | 5.5795339 | 0.01061901 | -2.4e-07 | +6.3e-06 | -5.1e-05 | 0.26 | 9.4 |
+# | 4 | 2 | 760626 | 5.5795351 | 0.01061896 | -2.6e-08 | +8.8e-07 | -1.2e-06 | 0.83 | 32.4 |
+# | 0 | 3 | 16219 | 5.5769827 | 0.01068905 | -4.6e-04 | +6.6e-03 | +6.9e-03 | 0.04 | 0.4 |
+# | 1 | 3 | 29107 | 5.5792821 | 0.01062467 | -4.5e-05 | +5.4e-04 | -5.8e-03 | 0.06 | 0.8 |
+# | 2 | 3 | 77656 | 5.5795143 | 0.01061971 | -3.7e-06 | +7.2e-05 | -7.0e-04 | 0.10 | 2.4 |
+# | 3 | 3 | 248710 | 5.5795339 | 0.01061901 | -2.3e-07 | +6.3e-06 | -5.1e-05 | 0.25 | 9.0 |
+# | 4 | 3 | 760626 | 5.5795351 | 0.01061896 | -2.6e-08 | +8.9e-07 | -1.2e-06 | 0.77 | 36.7 |
 #
 # The finest level matches the drag to $3 \cdot 10^{-8}$ and the lift to
-# $7 \cdot 10^{-7}$ relative (the check below asks for $10^{-4}$ and $10^{-2}$), with five
+# $9 \cdot 10^{-7}$ relative (the check below asks for $10^{-4}$ and $10^{-2}$), with five
 # Newton steps at every level. With the geometry's sizing alone (the demo before the size
-# field) the same number of degrees of freedom gave $4.2 \cdot 10^{-7}$ and
-# $2.1 \cdot 10^{-5}$: the field is 16 and 28 times more accurate there, for the reason
-# given above. Degree-3 geometry changes $c_D$ by $7 \cdot 10^{-6}$ relative at level 0 and
-# by $3 \cdot 10^{-10}$ at level 4: from level 2 on, the error of the $P_2/P_1$ solution
-# dominates that of the degree-2 boundary. $\Delta p$, a point value of the $P_1$
-# pressure on the boundary, converges more slowly: the two points lie wherever the
-# quadtree puts them along a boundary edge (gmsh's meshes have vertices there, the circle's
-# nodes starting at angle 0).
+# field) $7.0 \cdot 10^5$ degrees of freedom gave $4.2 \cdot 10^{-7}$ and
+# $2.1 \cdot 10^{-5}$, for the reason given above. Degree-3 geometry changes $c_D$ by
+# $3 \cdot 10^{-6}$ relative at level 0 and by $2 \cdot 10^{-10}$ at level 4: from level 2
+# on, the error of the $P_2/P_1$ solution dominates that of the degree-2 boundary.
+# $\Delta p$ is a point value of the $P_1$ pressure on the boundary; both points lie on
+# the mirror line, and on these symmetric meshes both are nodes on the circle at every
+# level (the vertex of $\Gamma_h$ on the line projects onto it), but the value at one
+# node converges less regularly than the forces.
 #
-# The adaptive loop (`adaptive_table`; $\theta = 0.3$, from level 0's field, mirrored
-# about the cylinder's axis), the dual-weighted estimates of the errors beside the errors:
+# The level-0 mesh has more degrees of freedom than the size field asks for there
+# ($1.3 \cdot 10^4$ before the mirror): the symmetric background's root cells are at most
+# $0.1$ (rows $0.1, 0.1 \mid 0.1, 0.11$ about $y = 0.2$; an unmirrored background of this
+# channel has root cells of $0.22 \times 0.205$), and at level 0 the far field is at the
+# root size.
+#
+# The adaptive loop (`adaptive_table`; $\theta = 0.3$, from level 0's field), the
+# dual-weighted estimates of the errors beside the errors:
 #
 # | round | dofs | err $c_D$ | est. | err $c_L$ | est. | err $\Delta p$ | mesh s | solve s | dual |
 # |---|---|---|---|---|---|---|---|---|---|
-# | 0 | 12983 | -7.0e-05 | -4.1e-05 | +7.8e-02 | +6.5e-02 | -9.7e-03 | 0.04 | 0.3 | 0.3 |
-# | 1 | 20300 | -7.0e-05 | -7.0e-05 | +2.6e-02 | +2.6e-02 | +3.9e-03 | 0.05 | 0.4 | 0.4 |
-# | 2 | 33344 | -7.1e-06 | -7.0e-06 | -8.0e-04 | -8.1e-04 | -1.3e-03 | 0.09 | 0.7 | 0.8 |
-# | 3 | 63191 | -1.1e-06 | -1.1e-06 | -1.9e-05 | -8.7e-06 | -7.8e-04 | 0.15 | 1.6 | 1.6 |
-# | 4 | 113575 | +2.5e-07 | +2.5e-07 | +3.1e-05 | +3.1e-05 | -9.0e-04 | 0.20 | 2.9 | 3.1 |
-# | 5 | 222337 | +1.5e-08 | +1.5e-08 | +2.3e-06 | +2.3e-06 | +9.3e-05 | 0.33 | 6.6 | 7.5 |
-# | 6 | 386195 | +2.9e-08 | +2.9e-08 | -8.6e-07 | -9.3e-07 | +1.0e-04 | 0.51 | 12.6 | 18.3 |
-# | 7 | 702565 | +1.8e-09 | +1.8e-09 | +7.1e-08 | -7.0e-09 | +2.2e-05 | 0.82 | 25.9 | 35.9 |
+# | 0 | 16219 | -4.6e-04 | -4.6e-04 | +6.5e-03 | +6.5e-03 | +6.8e-03 | 0.04 | 0.4 | 0.4 |
+# | 1 | 23154 | -6.1e-05 | -6.0e-05 | +1.2e-03 | +1.2e-03 | -5.3e-03 | 0.07 | 0.6 | 0.7 |
+# | 2 | 36073 | -7.6e-06 | -7.6e-06 | +3.6e-04 | +3.6e-04 | -5.8e-04 | 0.08 | 1.0 | 1.2 |
+# | 3 | 73085 | -1.7e-06 | -1.7e-06 | +6.5e-06 | +6.9e-06 | -4.8e-06 | 0.18 | 2.5 | 2.4 |
+# | 4 | 106247 | +5.2e-08 | +5.5e-08 | +9.6e-06 | +9.4e-06 | -1.4e-04 | 0.18 | 3.6 | 3.4 |
+# | 5 | 236050 | +3.7e-08 | +3.8e-08 | +3.1e-07 | +2.4e-07 | -1.3e-04 | 0.37 | 9.9 | 8.7 |
+# | 6 | 419425 | +1.6e-08 | +1.6e-08 | +5.5e-07 | +4.7e-07 | -3.7e-06 | 0.53 | 16.7 | 23.7 |
+# | 7 | 765663 | -3.3e-10 | -2.5e-10 | +1.6e-07 | +8.2e-08 | -4.3e-05 | 1.19 | 36.3 | 46.7 |
 #
-# From round 1 on the estimate of the drag's error is within 4 % of the error; that of
-# the lift is within $10^{-5}$ of its error (round 3, where the error is small) and within
-# $1.1 \cdot 10^{-7}$ from round 4 on: the loop knows how accurate its forces are. In the two finest
-# rounds the lift's error and its estimate differ by the same $7 \cdot 10^{-8}$ relative
-# ($8 \cdot 10^{-10}$ absolute). The estimate leaves out the error of the degree-2
-# boundary, but an earlier run of this loop gave the same difference with degree-3 and
-# degree-4 geometry on its meshes of $3.7 \cdot 10^5$ and $6.6 \cdot 10^5$ degrees of
-# freedom ($8.3 \cdot 10^{-8}$ and $7.8 \cdot 10^{-8}$; the two degrees agreed to all
-# digits): the difference shrinks neither with the mesh nor with the geometry's degree,
-# which points to the last digits of the reference value (the corrected lift
-# $c_L(w_h) - \sum_K \eta^L_K$ is $0.0106189490$ in round 7). At $7.0 \cdot 10^5$
-# degrees of freedom the drag error is $1.8 \cdot 10^{-9}$ (the field's level 4:
-# $2.7 \cdot 10^{-8}$ at $6.9 \cdot 10^5$), the lift error $7.1 \cdot 10^{-8}$
-# ($7.4 \cdot 10^{-7}$) and that of $\Delta p$ $2.2 \cdot 10^{-5}$ ($1.5 \cdot 10^{-4}$).
+# Up to round 6 the estimate of the drag's error is within 5 % of the error (down to
+# $1.6 \cdot 10^{-8}$; in round 7 the error, $3 \cdot 10^{-10}$, is near the last digit of
+# the reference value); the estimate of the lift's error is within $4 \cdot 10^{-7}$ of it
+# from round 3 on, and within $8 \cdot 10^{-8}$ from round 5 on: the loop knows how
+# accurate its forces are. In the three finest rounds the lift's error and its estimate
+# differ by the same $7$–$8 \cdot 10^{-8}$ relative ($8 \cdot 10^{-10}$ absolute), as in
+# every earlier run of this loop, on other meshes and with degree-3 and degree-4 geometry
+# (whose lifts agreed with degree 2's to all digits): the difference shrinks neither with
+# the mesh nor with the geometry's degree, which points to the last digits of the
+# reference value (the corrected lift $c_L(w_h) - \sum_K \eta^L_K$ is $0.0106189490$ in
+# round 7, as before). At $7.7 \cdot 10^5$ degrees of freedom the drag error is
+# $3 \cdot 10^{-10}$ (the field's level 4: $2.6 \cdot 10^{-8}$ at $7.6 \cdot 10^5$) and the
+# lift error $1.6 \cdot 10^{-7}$ ($8.8 \cdot 10^{-7}$).
 #
-# The mirror matters for the lift. Without it (this loop before) the
-# rounds went through $1.06 \cdot 10^5$ degrees of freedom with a lift error of
-# $1.3 \cdot 10^{-4}$, four times the $3.1 \cdot 10^{-5}$ of round 4 here at
-# $1.14 \cdot 10^5$. `benchmarks/dfg_vs_gmsh.py --layers 2` splits the lift's estimate
-# over the two halves at $8.8 \cdot 10^4$ degrees of freedom: on the gmsh mesh graded like
-# this demo's field they are $+4.8 \cdot 10^{-4}$ and $-4.3 \cdot 10^{-4}$ (error
-# $5.5 \cdot 10^{-5}$); on the adaptive mesh without the mirror $+1.0 \cdot 10^{-4}$ and
-# $+6.0 \cdot 10^{-5}$, smaller, but of one sign, so they add up to $1.6 \cdot 10^{-4}$;
-# with it $+1.8 \cdot 10^{-4}$ and $-1.2 \cdot 10^{-4}$ ($6.2 \cdot 10^{-5}$). Where the
-# loop refines is in `adaptive_mesh.png` (round 3). Each round costs one `mesh_domain`
-# (the background's quadtree rebuilt from the new field and the circle conformed to it:
-# 0.04 s to 0.8 s), the solve and the dual solve ($P_3/P_2$, one factorisation for both
-# forces: about as long as Newton's five steps, 36 s against 26 s at $7 \cdot 10^5$
-# degrees of freedom).
+# The symmetric mesh matters for the lift. `benchmarks/dfg_vs_gmsh.py --layers 2` splits
+# the lift's estimate over the two halves of the cylinder at $8.8 \cdot 10^4$ degrees of
+# freedom: on the gmsh mesh graded like this demo's field they are $+4.8 \cdot 10^{-4}$
+# and $-4.3 \cdot 10^{-4}$ (error $5.5 \cdot 10^{-5}$: gmsh places the circle's nodes
+# symmetrically); on the adaptive mesh here $+3.8 \cdot 10^{-5}$ and $-2.8 \cdot 10^{-5}$
+# (error $1.0 \cdot 10^{-5}$). Before the mesh was symmetric, with only the refinement
+# mirrored, the halves were $+1.8 \cdot 10^{-4}$ and $-1.2 \cdot 10^{-4}$ (error
+# $6.2 \cdot 10^{-5}$), and with neither $+1.0 \cdot 10^{-4}$ and $+6.0 \cdot 10^{-5}$
+# ($1.6 \cdot 10^{-4}$): the relaxation's choices and the quadtree's pinwheel stencils
+# made the two halves' cells differ, and their errors stopped cancelling. The loop's
+# rounds 3 and 4 had lift errors of $-1.9 \cdot 10^{-5}$ and $3.1 \cdot 10^{-5}$ then
+# ($6.3 \cdot 10^4$ and $1.1 \cdot 10^5$ degrees of freedom), $6.5 \cdot 10^{-6}$ and
+# $9.6 \cdot 10^{-6}$ now. Where the loop refines is in `adaptive_mesh.png` (round 3).
+# Each round costs one `mesh_domain` (the background's quadtree rebuilt from the new
+# field and the circle conformed to it: 0.04 s to 1.2 s), the solve and the dual solve
+# ($P_3/P_2$, one factorisation for both forces: about 1.3 times Newton's five steps at
+# $7.7 \cdot 10^5$ degrees of freedom).
 #
 # `benchmarks/dfg_vs_gmsh.py` runs `solve` on body-fitted gmsh meshes (the FEniCSx
 # tutorial's Threshold field and two finer at the cylinder, `setOrder(2)`) and on this
 # demo's meshes at equal numbers of degrees of freedom: the field's levels and the
 # adaptive loop (its last step's Dörfler fraction chosen to give the same number).
-# From $6 \cdot 10^4$ degrees of freedom on, the adaptive meshes' drag error is below that
-# of every gmsh mesh (at $7 \cdot 10^5$: $1.1 \cdot 10^{-9}$ to $3.1 \cdot 10^{-9}$ against
-# $2.0 \cdot 10^{-8}$ to $2.1 \cdot 10^{-7}$), and so is their lift error in eight of the
-# nine comparisons (at $7 \cdot 10^5$: $6.4 \cdot 10^{-9}$ to $2.8 \cdot 10^{-7}$ against
-# $1.5 \cdot 10^{-6}$ to $8.8 \cdot 10^{-6}$); at $8.8 \cdot 10^4$ the gmsh mesh graded
-# like this demo's field has the smaller lift error ($5.5 \cdot 10^{-5}$ against
-# $6.2 \cdot 10^{-5}$; $1.6 \cdot 10^{-4}$ without the mirror). Over six sizes around
-# that one (`--spread 2`) the medians are $3.4 \cdot 10^{-5}$ here against
-# $4.1 \cdot 10^{-5}$, each ahead at three. Meshing is 12.5 to 13.5 times faster than
-# gmsh's generate and `model_to_mesh` at $7 \cdot 10^5$ with the field, 7.6 to 8.0 times
-# with the adaptive field (README, "DFG per degree of freedom against gmsh", for the
-# table).
+# From $6 \cdot 10^4$ degrees of freedom on, the adaptive meshes' drag and lift errors
+# are below those of every gmsh mesh, in all nine comparisons: the drag's by 3.7 to 340
+# times (at $7 \cdot 10^5$: $3.9 \cdot 10^{-10}$ to $6.3 \cdot 10^{-9}$ against
+# $2.0 \cdot 10^{-8}$ to $2.1 \cdot 10^{-7}$), the lift's by 1.9 to 57 times (at
+# $7 \cdot 10^5$: $1.5 \cdot 10^{-7}$ to $1.8 \cdot 10^{-7}$ against $1.5 \cdot 10^{-6}$
+# to $8.8 \cdot 10^{-6}$). Meshing is 8.7 to 9.2 times faster than gmsh's generate and
+# `model_to_mesh` at $7 \cdot 10^5$ with the field, 5.8 to 7.7 times with the adaptive
+# field (README, "DFG per degree of freedom against gmsh", for the table).
 #
 # ## The study
 
