@@ -25,10 +25,12 @@ __all__ = [
     "as_points",
     "cell_diameters",
     "cross2",
+    "distinct_rows",
     "edge_lengths",
     "interior_angles",
     "kd_query",
     "lagrange_element",
+    "mirror_line",
     "norm2",
     "positive",
     "project_together",
@@ -168,7 +170,21 @@ def rot90(v: Float) -> Float:
     return np.column_stack([-v[:, 1], v[:, 0]])
 
 
-def _distinct_rows(x: Float) -> tuple[Int, Int | None]:
+def mirror_line(mirror: tuple[npt.ArrayLike, npt.ArrayLike], gdim: int) -> tuple[Float, Float]:
+    """The point and the unit normal of a mirror line (plane) ``(point, normal)`` of ``gdim``
+    finite numbers each; ``ValueError`` for anything else or a zero normal."""
+    point = np.asarray(mirror[0], dtype=np.float64).reshape(-1)
+    normal = np.asarray(mirror[1], dtype=np.float64).reshape(-1)
+    length = float(np.sqrt(normal @ normal)) if len(normal) == gdim else 0.0
+    if len(point) != gdim or not np.all(np.isfinite(point)) or not 0.0 < length < np.inf:
+        raise ValueError(
+            f"mirror must be (point, normal) of {gdim} finite numbers each, the normal "
+            f"nonzero: {mirror}"
+        )
+    return point, normal / length
+
+
+def distinct_rows(x: Float) -> tuple[Int, Int | None]:
     """The first of each set of bitwise equal rows of ``x (n, dim)`` and, for every row,
     the position of its set's among them; ``inverse = None`` where the rows are all
     distinct or the C kernels are not built (then every row is its own)."""
@@ -226,7 +242,7 @@ def project_together(
     if not queries:
         return []
     flat = np.concatenate([q.reshape(-1, dim) for q in queries])
-    first, inverse = _distinct_rows(flat)
+    first, inverse = distinct_rows(flat)
     if not len(flat):
         proj = flat
     elif inverse is None:

@@ -14,7 +14,7 @@ import numpy as np
 import numpy.typing as npt
 from dolfinx import mesh as dmesh
 
-from ._geometry import Bool, Float, Int
+from ._geometry import Bool, Float, Int, mirror_line
 from .background import GRADATION, vertex_sizes
 from .checks import (
     CellLocator,
@@ -820,18 +820,7 @@ def _mirror_frame(
         return None
     if tdim != 2:
         raise ValueError("a mirror is supported on triangles only")
-    point = np.asarray(mirror[0], dtype=np.float64).reshape(-1)
-    normal = np.asarray(mirror[1], dtype=np.float64).reshape(-1)
-    length = float(np.hypot(*normal)) if len(normal) == 2 else 0.0
-    if (
-        len(point) != 2
-        or not np.all(np.isfinite(point))
-        or not (length > 0 and np.isfinite(length))
-    ):
-        raise ValueError(
-            f"mirror must be (point, normal) of two finite numbers each, normal nonzero: {mirror}"
-        )
-    n = normal / length
+    point, n = mirror_line(mirror, 2)
     rotation = np.array([[n[1], n[0]], [-n[0], n[1]]])  # columns: the line's direction, n
     return RelaxFrame(rotation, point, mirror=1)
 

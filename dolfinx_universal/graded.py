@@ -11,7 +11,14 @@ import numpy as np
 import numpy.typing as npt
 from dolfinx import mesh as dmesh
 
-from ._geometry import cell_diameters, edge_lengths, interior_angles, signed_areas
+from ._geometry import (
+    cell_diameters,
+    distinct_rows,
+    edge_lengths,
+    interior_angles,
+    mirror_line,
+    signed_areas,
+)
 from .background import create_mesh, layout_partitioner
 
 __all__ = [
@@ -390,12 +397,9 @@ def mirror_axis(mirror: Mirror, gdim: int) -> tuple[int, float]:
     ------
     ValueError
         For a normal along no coordinate axis, or input that is not ``gdim`` finite
-        numbers each.
+        numbers each (:func:`~dolfinx_universal._geometry.mirror_line`).
     """
-    point = np.asarray(mirror[0], dtype=np.float64).reshape(-1)
-    normal = np.asarray(mirror[1], dtype=np.float64).reshape(-1)
-    if len(point) != gdim or len(normal) != gdim or not np.all(np.isfinite([*point, *normal])):
-        raise ValueError(f"mirror must be (point, normal) of {gdim} finite numbers each: {mirror}")
+    point, normal = mirror_line(mirror, gdim)
     axes = np.flatnonzero(normal != 0.0)
     if len(axes) != 1:
         raise ValueError(
@@ -406,11 +410,11 @@ def mirror_axis(mirror: Mirror, gdim: int) -> tuple[int, float]:
 
 def _mirror_breaks(
     box: npt.ArrayLike, root_size: float | None, mirror: Mirror
-) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], int, int, int]:
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], int, int]:
     """Root cells of a box symmetric about an axis-aligned mirror line near it.
 
-    Returns the cells' boundaries along x and y, the mirror's axis, the index of the
-    boundary on the line and the number of root rows mirrored on each side of it.
+    Returns the cells' boundaries along x and y, the mirror's axis and the index of the
+    boundary on the line.
 
     The line is a boundary of root cells; the rows (columns for a vertical line) on its
     shorter side are mirrored on the longer side, as many of them as leave the rest of the
@@ -460,11 +464,10 @@ def _mirror_breaks(
             )
             side[0], side[-1] = lo, hi
             k_axis = int(np.flatnonzero(side == a)[0])
-            band = k  # root rows mirrored on each side of the line
             other = b[0, 1 - axis] + st * np.arange(n_t + 1)
             other[0], other[-1] = b[0, 1 - axis], b[1, 1 - axis]
             bx, by = (side, other) if axis == 0 else (other, side)
-            return bx, by, axis, k_axis, band
+            return bx, by, axis, k_axis
         s /= 2.0
     raise ValueError(
         f"no root cells of {b.tolist()} are symmetric about {mirror}"
@@ -555,13 +558,11 @@ def _refine(
             if breaks is None:
                 hmin = h(pts).reshape(len(k), len(offsets)).min(axis=1)
                 return EDGE_FACTOR * s.max() > hmin
-            # In root units the samples are exact lattice points, and most are shared by
-            # two or four cells: the size at each distinct one (about 4 of the 9 a cell).
-            grid = np.rint(pts * 2.0 ** (level + 1)).astype(np.int64)
-            key = grid[:, 0] * ((ny_l << 1) + 1) + grid[:, 1]
-            distinct, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-            del distinct
-            values = np.asarray(h(_through(breaks, pts[first])))[inverse.reshape(-1)]
+            # In root units the samples are exact lattice points (bitwise equal where two or
+            # four cells share one): the size at each distinct one (about 4 of the 9 a cell).
+            first, inverse = distinct_rows(pts)
+            values = np.asarray(h(_through(breaks, pts[first])))
+            values = values if inverse is None else values[inverse]
             hmin = values.reshape(len(k), len(offsets)).min(axis=1)
             side = np.maximum(np.diff(breaks[0])[ci >> level], np.diff(breaks[1])[cj >> level]) * (
                 0.5**level
@@ -734,7 +735,7 @@ def _tree(
         refined = _balance(_refine(h, x0, y0, sx, sy, nx, ny, comm), nx, ny)
         breaks, flip = None, None
     else:
-        bx, by, axis, k, _ = _mirror_breaks(box, root_size, mirror)
+        bx, by, axis, k = _mirror_breaks(box, root_size, mirror)
         nx, ny = len(bx) - 1, len(by) - 1
         x0, y0, x1, y1, sx, sy = 0.0, 0.0, float(nx), float(ny), 1.0, 1.0
         breaks, flip = (bx, by), (axis, k)

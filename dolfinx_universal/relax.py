@@ -273,7 +273,7 @@ class RelaxFrame(NamedTuple):
         y = (np.asarray(x, dtype=np.float64) - self.origin) @ self.rotation
         if self.mirror is None:
             return coordinate_priority(np.floor(y / FRAME_GRID + _FRAME_OFFSET))
-        side = self.side(x) > 0
+        side = y[:, self.mirror] >= FRAME_GRID  # (side(x) > 0)
         y[:, self.mirror] = np.abs(y[:, self.mirror])
         bits = np.ldexp(coordinate_priority(np.floor(y / FRAME_GRID + _FRAME_OFFSET)), 53)
         return np.ldexp(2.0 * np.floor(bits / 2.0) + side, -53)

@@ -111,20 +111,20 @@ def test_compiled_curved_map_is_numpy_s(conformed, name, monkeypatch):
 
 def test_distinct_rows():
     """Each set of bitwise equal rows once, in order of appearance; -0.0 and 0.0 differ."""
-    from dolfinx_universal._geometry import _distinct_rows
+    from dolfinx_universal._geometry import distinct_rows
 
     rng = np.random.default_rng(3)
     base = rng.random((50, 3))
     base[7] = [0.0, 1.0, 2.0]
     base[8] = [-0.0, 1.0, 2.0]
     x = base[rng.integers(0, 50, 400)]
-    first, inverse = _distinct_rows(x)
+    first, inverse = distinct_rows(x)
     assert inverse is not None
     np.testing.assert_array_equal(x[first][inverse], x)
     keys = x.view(np.dtype((np.void, 24))).ravel()
     assert len(first) == len(np.unique(keys)) == len(np.unique(keys[first]))
     assert (np.diff(first) > 0).all() and first[0] == 0
-    first, inverse = _distinct_rows(base)  # all distinct
+    first, inverse = distinct_rows(base)  # all distinct
     assert inverse is None and np.array_equal(first, np.arange(50))
 
 

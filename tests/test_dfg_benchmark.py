@@ -142,6 +142,7 @@ def test_point_values(demo, degree):
     mirror line, are vertices of Gamma_h.)"""
     import basix.ufl
     from dolfinx import fem
+    from dolfinx import mesh as dmesh
 
     md = demo.channel_mesh(demo.level_scale(0), degree)
     msh = md.mesh
@@ -149,7 +150,8 @@ def test_point_values(demo, degree):
     msh.topology.create_connectivity(1, 0)
     f2v = msh.topology.connectivity(1, 0)
     verts = np.unique([f2v.links(f) for f in md.facet_tags.find(du.IMMERSED)])
-    x = msh.geometry.x[_vertex_nodes(msh, verts)]
+    msh.topology.create_connectivity(0, msh.topology.dim)
+    x = msh.geometry.x[dmesh.entities_to_geometry(msh, 0, verts.astype(np.int32)).ravel()]
     angles = np.sort(np.concatenate(msh.comm.allgather(np.arctan2(x[:, 1] - 0.2, x[:, 0] - 0.2))))
     mid = 0.5 * (angles[0] + angles[1])
     inside = [0.2 + (0.05 - 1e-4) * np.cos(mid), 0.2 + (0.05 - 1e-4) * np.sin(mid), 0.0]
@@ -172,20 +174,6 @@ def test_point_values(demo, degree):
     np.testing.assert_allclose(values, points[:, 0] + 2 * points[:, 1], rtol=0, atol=1e-9)
     with pytest.raises(RuntimeError, match="lie in no cell"):  # the cylinder's centre
         demo.point_values(f, np.array([[0.2, 0.2, 0.0]]))
-
-
-def _vertex_nodes(msh, vertices: np.ndarray) -> np.ndarray:
-    """The geometry nodes of local ``vertices``."""
-    tdim = msh.topology.dim
-    msh.topology.create_connectivity(0, tdim)
-    v2c = msh.topology.connectivity(0, tdim)
-    c2v = msh.topology.connectivity(tdim, 0)
-    dofmap = msh.geometry.dofmaps[0]
-    out = []
-    for v in vertices:
-        c = v2c.links(v)[0]
-        out.append(dofmap[c][list(c2v.links(c)).index(v)])
-    return np.array(out, dtype=np.int64)
 
 
 def test_adaptive_loop(runs):

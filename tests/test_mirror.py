@@ -56,15 +56,15 @@ def asymmetry(x: np.ndarray, band: float, axis: int = 1, a: float = CENTRE[1]) -
 def test_root_rows_of_a_channel():
     """The channel's rows about y = 0.2: 0.1, 0.1 | 0.1, 0.11 (root cells of 0.1 by 0.1, 22
     columns); the line is a root boundary, exactly; the outer row is within MAX_STRETCH."""
-    bx, by, axis, k, band = gr._mirror_breaks(BOX, 0.387, MIRROR)
-    assert axis == 1 and by[k] == 0.2 and band == 1
+    bx, by, axis, k = gr._mirror_breaks(BOX, 0.387, MIRROR)
+    assert axis == 1 and by[k] == 0.2 and k == 2  # one row of 0.1 mirrored on each side
     assert np.allclose(np.diff(by), [0.1, 0.1, 0.1, 0.11]) and len(bx) == 23
     assert by[0] == 0.0 and by[-1] == HEIGHT and bx[0] == 0.0 and bx[-1] == LENGTH
     rows, cols = np.diff(by), np.diff(bx)
     assert max(rows.max() / cols.min(), cols.max() / rows.min()) <= gr.MAX_STRETCH * (1 + 1e-9)
     # A vertical line: columns of 0.2, five mirrored on each side.
-    bx, by, axis, k, band = gr._mirror_breaks(BOX, 0.2, ((1.0, 0.0), (1.0, 0.0)))
-    assert axis == 0 and bx[k] == 1.0 and band == 5 and np.allclose(np.diff(bx), 0.2)
+    bx, by, axis, k = gr._mirror_breaks(BOX, 0.2, ((1.0, 0.0), (1.0, 0.0)))
+    assert axis == 0 and bx[k] == 1.0 and k == 5 and np.allclose(np.diff(bx), 0.2)
 
 
 def test_bad_mirrors():
