@@ -3,7 +3,7 @@
 The 3D counterpart of ``conform_floor.py``. The background is an A15 mesh
 (:func:`~dolfinx_universal.a15_mesh`) of about 1e6 tetrahedra (8e4 with ``--quick``: the
 torus needs ``h`` below about 0.15) on ``[-L, L]^3``, ``L = 0.85 + 3.5 h`` (1.01 at 1e6); the
-domains are a ball (a :class:`~dolfinx_universal.surfaces.Sphere` of radius 0.8) and a
+domains are a ball (a :class:`~dolfinx_universal.boundaries.surfaces.Sphere` of radius 0.8) and a
 solid torus (major radius 0.55, minor radius 0.3, tilted axis), moved by a fraction of ``h``
 at every step (the offsets ``OFFSETS``, fixed, never tuned), so that no step finds
 another's cached samples.
@@ -51,7 +51,7 @@ from _floor import print_table, timed_pairs
 from dolfinx import mesh as dmesh
 
 import dolfinx_universal as du
-from dolfinx_universal.background_tet import _a15_layout
+from dolfinx_universal.backgrounds.lattice_tet import _a15_layout
 
 EXTENT = 0.85
 """The domains lie in ``[-EXTENT, EXTENT]^3`` (up to the offsets)."""

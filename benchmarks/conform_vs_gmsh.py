@@ -72,12 +72,12 @@ import gmsh
 from _tables import columns, header
 from dolfinx.io import gmsh as dgmsh
 
-from dolfinx_universal.background import equilateral_mesh
-from dolfinx_universal.boundaries import Circle
-from dolfinx_universal.conform import conform
+from dolfinx_universal.backgrounds.lattice_tri import equilateral_mesh
+from dolfinx_universal.boundaries.curves import Circle
+from dolfinx_universal.conforming.universal import conform
 
 try:
-    from dolfinx_universal.conform import UniversalMesh
+    from dolfinx_universal.conforming.universal import UniversalMesh
 except ImportError:  # package versions without the reusable preparation
     UniversalMesh = None
 

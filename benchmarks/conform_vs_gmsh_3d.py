@@ -26,7 +26,7 @@ tetrahedra in the ball; ``--quick``: 2e4) the benchmark measures
 Quality of both meshes (the centred ball's universal mesh and gmsh's): the smallest and
 largest dihedral angle, the histogram of all dihedral angles in 10-degree bins, the
 smallest radius ratio ``3 r_in / R_circ`` and mean ratio (both 1 for the regular
-tetrahedron), by :func:`dolfinx_universal.quality.cell_quality` (what
+tetrahedron), by :func:`dolfinx_universal.conforming.quality.cell_quality` (what
 :func:`~dolfinx_universal.quality_report` computes) on the owned cells of each DOLFINx mesh.
 
 Neither side includes function spaces, assembly or I/O. One untimed warm-up of each
@@ -61,8 +61,8 @@ from _tables import columns, header
 from conform_vs_gmsh import Clock, load, timed
 from dolfinx.io import gmsh as dgmsh
 
-from dolfinx_universal._tetrahedron import DIHEDRAL_BIN_EDGES
-from dolfinx_universal.quality import cell_quality
+from dolfinx_universal.cells.tet import DIHEDRAL_BIN_EDGES
+from dolfinx_universal.conforming.quality import cell_quality
 
 BALL_VOLUME = 4.0 * math.pi / 3.0
 A15_DENSITY = 11.5

@@ -11,7 +11,7 @@ warm-up step):
   submesh) plus :func:`curved_mesh`, plus creating the P2/P1 spaces and the matrix on the
   new mesh (what every step would then need);
 * one Taylor–Hood (P2/P1) Stokes assembly and MUMPS solve on the in-place mesh
-  (:class:`~dolfinx_universal.moving_problem.MovingStokes`) (up to 1e5
+  (:class:`~dolfinx_universal.moving.problems.MovingStokes`) (up to 1e5
   cells; at 1e6 cells a direct solve does not fit this machine's time budget).
 
 Run: ``python benchmarks/moving_update.py [--sizes 1e4 1e5 1e6] [--steps 5] [--quick]``; also under
@@ -32,8 +32,8 @@ from dolfinx import fem
 from dolfinx.fem.petsc import create_matrix
 
 import dolfinx_universal as du
-from dolfinx_universal.moving import MovingDomain
-from dolfinx_universal.moving_problem import MovingStokes
+from dolfinx_universal.moving.domain import MovingDomain
+from dolfinx_universal.moving.problems import MovingStokes
 
 comm = MPI.COMM_WORLD
 

@@ -3,14 +3,15 @@
 For equilateral backgrounds of the square [-1, 1]^2 (about 1e6 and 4e6 cells by default) and
 the rotating three-blade body of ``benchmarks/moving_update.py``, the script times
 
-* ``background``: :func:`~dolfinx_universal.background.equilateral_mesh` (each rank builds
+* ``background``: :func:`~dolfinx_universal.backgrounds.lattice_tri.equilateral_mesh` (each rank
+builds
   its strip of rows, DOLFINx creates the distributed mesh with shared-facet ghosts);
-* ``prepare``: the :class:`~dolfinx_universal.conform.UniversalMesh` constructor;
+* ``prepare``: the :class:`~dolfinx_universal.conforming.universal.UniversalMesh` constructor;
 * ``conform``: :meth:`UniversalMesh.conform` (classification, projections, ``M_h``, the
   DOLFINx submesh with its facets and tags), split into ``straight`` (up to ``M_h``) and
   ``mesh`` (the submesh part);
-* ``curved``: :func:`~dolfinx_universal.curved.curved_mesh` with ``q = 2``;
-* ``update``: :meth:`~dolfinx_universal.moving.MovingDomain.update` (``q = 2``), the body
+* ``curved``: :func:`~dolfinx_universal.curved.maps.curved_mesh` with ``q = 2``;
+* ``update``: :meth:`~dolfinx_universal.moving.domain.MovingDomain.update` (``q = 2``), the body
   turned by 3 degrees per step.
 
 Each time is the maximum over the ranks (barriers around every call), then the median over
@@ -72,8 +73,8 @@ from moving_update import propeller, timed  # noqa: E402
 
 import dolfinx_universal as du  # noqa: E402
 from dolfinx_universal import io as duio  # noqa: E402
-from dolfinx_universal.moving import MovingDomain  # noqa: E402
-from dolfinx_universal.quality import quality_report  # noqa: E402
+from dolfinx_universal.conforming.quality import quality_report  # noqa: E402
+from dolfinx_universal.moving.domain import MovingDomain  # noqa: E402
 
 comm = MPI.COMM_WORLD
 PHASES = ("background", "prepare", "conform", "straight", "mesh", "curved", "update")

@@ -25,7 +25,7 @@ import numpy as np
 from _floor import UpdateFloor, equilateral, print_table, propeller_demo, three_blades, timed_pairs
 
 import dolfinx_universal as du
-from dolfinx_universal.moving import MovingDomain
+from dolfinx_universal.moving.domain import MovingDomain
 
 
 def compare(comm, background, curve, step_deg, repeats, **options):

@@ -23,12 +23,13 @@
 #
 # It illustrates how to
 #
-# - mesh a domain with a hole, {py:class}`dolfinx_universal.boundaries.Domain` (a container
+# - mesh a domain with a hole, {py:class}`dolfinx_universal.boundaries.curves.Domain` (a container
 #   sphere minus a body sphere), with curved tetrahedra of degree $q$ by
-#   {py:func}`dolfinx_universal.domain.mesh_domain`, forcing a uniform background of a
+#   {py:func}`dolfinx_universal.meshing.domain.mesh_domain`, forcing a uniform background of a
 #   given size $h$ for a convergence study,
 # - tell the two spheres apart among the faces tagged
-#   {py:data}`dolfinx_universal.conform.IMMERSED` (both carry this tag) and tag them anew
+#   {py:data}`dolfinx_universal.conforming.universal.IMMERSED` (both carry this tag) and tag them
+# anew
 #   for a traction on one and Dirichlet data on the other,
 # - solve vector-valued elasticity with MUMPS or with conjugate gradients and PETSc's
 #   algebraic multigrid, given the rigid-body modes as near-nullspace,
@@ -206,7 +207,7 @@ def closed_form_residuals(n: int = 200) -> dict[str, float]:
 # for surfaces, `"I~"`.
 #
 # Both spheres are tagged `IMMERSED` in the facet tags of
-# {py:func}`~dolfinx_universal.domain.mesh_domain`; the facets whose midpoint lies within
+# {py:func}`~dolfinx_universal.meshing.domain.mesh_domain`; the facets whose midpoint lies within
 # radius $(a + b)/2 = 0.75$ are the inner sphere's (the facets of $\Gamma_h$ lie within
 # $O(h^2)$ of their sphere), the others the outer one's. `tags` gives them new values,
 # `INNER` and `OUTER`.

@@ -18,7 +18,7 @@
 #
 # - solve a mixed problem on degree-2 and degree-4 curved universal meshes of a disc,
 # - impose a tangential condition node by node with
-#   {py:class}`dolfinx_universal.constraints.SlipConstraint`,
+#   {py:class}`dolfinx_universal.curved.constraints.SlipConstraint`,
 # - evaluate a function at a point in parallel.
 #
 # Run it with
@@ -50,7 +50,7 @@
 # degree-2 (or 4) curved universal meshes of the disc.
 #
 # The condition $\theta\cdot T = 0$ is imposed node by node with
-# {py:class}`dolfinx_universal.constraints.SlipConstraint` (a local rotation of the two
+# {py:class}`dolfinx_universal.curved.constraints.SlipConstraint` (a local rotation of the two
 # components of $\theta$ at each boundary node). Three variants:
 #
 # * `I_true_tangent`: isoparametric map $I_h$ (geometry P2), $T$ = the tangent of the true
@@ -104,7 +104,7 @@ import ufl
 from dolfinx import fem
 
 import dolfinx_universal as du
-from dolfinx_universal.constraints import SlipConstraint
+from dolfinx_universal.curved.constraints import SlipConstraint
 from dolfinx_universal.demo_support import demo_options, log, point_values, write_summary
 from dolfinx_universal.plotting import save
 

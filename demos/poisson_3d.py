@@ -20,12 +20,12 @@
 # It illustrates how to
 #
 # - mesh the solids bounded by a sphere, an ellipsoid and a torus
-#   ({py:mod}`dolfinx_universal.surfaces`) with curved tetrahedra of degree $q$ by
-#   {py:func}`dolfinx_universal.domain.mesh_domain`, forcing a uniform background of a
+#   ({py:mod}`dolfinx_universal.boundaries.surfaces`) with curved tetrahedra of degree $q$ by
+#   {py:func}`dolfinx_universal.meshing.domain.mesh_domain`, forcing a uniform background of a
 #   given size $h$ for a convergence study,
 # - solve the Poisson problem of DOLFINx's own Poisson demo on these meshes, with the
 #   Dirichlet data at the degrees of freedom of the faces tagged
-#   {py:data}`dolfinx_universal.conform.IMMERSED`,
+#   {py:data}`dolfinx_universal.conforming.universal.IMMERSED`,
 # - measure the errors against the exact solution and the convergence rates,
 # - draw a clipped view of the ball's mesh with
 #   {py:func}`dolfinx_universal.plotting.plot_tetrahedra`.
@@ -99,7 +99,8 @@ CG = {"ksp_type": "cg", "pc_type": "gamg", "ksp_rtol": 1e-12, "ksp_atol": 0.0}
 
 # ## The meshes
 #
-# {py:func}`dolfinx_universal.domain.mesh_domain` sizes its background from the surface: near
+# {py:func}`dolfinx_universal.meshing.domain.mesh_domain` sizes its background from the surface:
+# near
 # $\Gamma$ the size is the local feature size divided by `size_factor` (3 or 4 by default),
 # at most `h`. A convergence study needs the size itself: with a `size_factor` so small that
 # the feature size never binds and the uniform A15 background (`tet_background="a15"`,

@@ -15,7 +15,7 @@
 #
 # It illustrates how to
 #
-# - conform a background mesh to a disc with {py:func}`dolfinx_universal.conform` and
+# - conform a background mesh to a disc with {py:func}`dolfinx_universal.conforming.universal` and
 #   curve its boundary triangles with {py:func}`dolfinx_universal.curved_mesh`,
 # - solve a problem on the curved DOLFINx mesh with the Dirichlet facets taken from its
 #   facet tags,

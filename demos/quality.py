@@ -18,10 +18,10 @@
 # It illustrates how to
 #
 # - conform an equilateral background mesh to a circle and to a spline domain with
-#   {py:func}`dolfinx_universal.conform`,
+#   {py:func}`dolfinx_universal.conforming.universal`,
 # - compare the plain $M_h$ images with the relaxed ones (`relax=True`, the default: the
 #   vertices near $\Gamma$ moved to raise the worst angle, see
-#   {py:mod}`dolfinx_universal.relax`),
+#   {py:mod}`dolfinx_universal.conforming.relax`),
 # - measure the quality of the result with {py:func}`dolfinx_universal.quality_report`,
 # - draw a conforming mesh over its background with
 #   {py:func}`dolfinx_universal.plotting.plot_conforming`.
@@ -92,13 +92,7 @@ import numpy as np
 
 import dolfinx_universal as du
 from dolfinx_universal.demo_support import demo_options, log, write_summary
-from dolfinx_universal.plotting import (
-    BOUNDARY_COLOR,
-    CUT_FACE,
-    KEPT_FACE,
-    plot_conforming,
-    save,
-)
+from dolfinx_universal.plotting import BOUNDARY_COLOR, CUT_FACE, KEPT_FACE, plot_conforming, save
 
 ETAS = (0.0, 0.2)  # the quality perturbation: off, and the method's default
 RELAX = (False, True)  # before and after the relaxation

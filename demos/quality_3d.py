@@ -19,11 +19,12 @@
 # It illustrates how to
 #
 # - build acute tetrahedral backgrounds: the A15 lattice
-#   ({py:func}`dolfinx_universal.background_tet.a15_mesh`, every dihedral angle between
+#   ({py:func}`dolfinx_universal.backgrounds.lattice_tet.a15_mesh`, every dihedral angle between
 #   53.1 and 78.5 degrees) and the body-centred cubic one
-#   ({py:func}`dolfinx_universal.background_tet.bcc_mesh`, 60 and 90 degrees),
+#   ({py:func}`dolfinx_universal.backgrounds.lattice_tet.bcc_mesh`, 60 and 90 degrees),
 # - conform them to a sphere, an ellipsoid and a torus
-#   ({py:mod}`dolfinx_universal.surfaces`) with {py:func}`dolfinx_universal.conform`,
+#   ({py:mod}`dolfinx_universal.boundaries.surfaces`) with
+# {py:func}`dolfinx_universal.conforming.universal`,
 # - measure the dihedral angles, the volume error and the time of each stage with
 #   {py:func}`dolfinx_universal.quality_report` and `ConformingMesh.timings`,
 # - draw a clipped view of a tetrahedral mesh with
@@ -67,7 +68,7 @@
 # placements of the surface (a random rotation and a random translation within one
 # lattice cell) and record the smallest and largest dihedral angle after the relaxation,
 # the relative volume error divided by $h^2$ (the method's error is $O(h^2)$), and the
-# time of each stage of {py:func}`dolfinx_universal.conform`: `classify` (signs near
+# time of each stage of {py:func}`dolfinx_universal.conforming.universal`: `classify` (signs near
 # $\Gamma$), `project` (closest points), `relax` (the relaxation), `map` ($\Gamma_h$ and
 # $M_h$ with their checks, without the relaxation) and `mesh` (the DOLFINx submesh). The
 # targets for the relaxed meshes: every dihedral angle within $[30°, 125°]$ (stretch goal
@@ -87,8 +88,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 import dolfinx_universal as du
-from dolfinx_universal._tetrahedron import dihedral_angles, signed_volumes
-from dolfinx_universal.background_tet import a15_mesh, bcc_mesh
+from dolfinx_universal.backgrounds.lattice_tet import a15_mesh, bcc_mesh
+from dolfinx_universal.cells.tet import dihedral_angles, signed_volumes
 from dolfinx_universal.demo_support import demo_options, log, write_summary
 from dolfinx_universal.plotting import plot_tetrahedra, save
 
@@ -148,7 +149,7 @@ def surface(name: str, rotation: np.ndarray, centre: np.ndarray) -> du.Surface:
 # the quality report's extreme dihedral angles, the volume error (the volumes of the owned
 # tetrahedra summed over the ranks), the stage timings (the slowest rank) and a histogram
 # of all dihedral angles in 1-degree bins (from the tetrahedron kernels of the package,
-# `dolfinx_universal._tetrahedron`, which the quality report uses too).
+# `dolfinx_universal.cells.tet`, which the quality report uses too).
 
 
 # +
@@ -288,7 +289,7 @@ def summarise(comm: MPI.Comm, runs: list[dict]) -> dict:
 # table measures the same three surfaces through that call, with the size near $\Gamma$
 # forced to $h = R/4, R/8, R/16$ (and $R/32$ for the sphere) by `size_factor`: the target
 # size near $\Gamma$ is the local feature size over `size_factor`
-# ({py:func}`dolfinx_universal.sizing.target_sizes`), and both tetrahedral backgrounds take
+# ({py:func}`dolfinx_universal.sizing.fields.target_sizes`), and both tetrahedral backgrounds take
 # the smallest target on a surface (the A15 one everywhere, the graded octree in its
 # uniform band), so `size_factor` $= n\, f_{\min}$, with $f_{\min}$ the smallest feature size
 # that `mesh_domain` samples (1 on the sphere, 0.25 at the tips of the ellipsoid, 0.35 on
@@ -304,7 +305,7 @@ def summarise(comm: MPI.Comm, runs: list[dict]) -> dict:
 #   degrees before any relaxation, and the relaxation leaves them alone);
 # - `auto3x`: the default `tet_background="auto"` in that large box, where it picks the
 #   octree, and conforms the A15 lattice instead where the octree's dihedral angles leave
-#   $[30°, 125°]$ ({py:data}`dolfinx_universal.domain.AUTO_DIHEDRAL`), unless the A15
+#   $[30°, 125°]$ ({py:data}`dolfinx_universal.meshing.domain.AUTO_DIHEDRAL`), unless the A15
 #   background would exceed `max_cells`.
 #
 # A placement is a random rotation and a translation of the surface by $u\,a$, with the
@@ -330,7 +331,7 @@ SHORT = {"A15 uniform": "A15", "graded BCC octree": "octree"}
 
 def domain_once(comm: MPI.Comm, name: str, setup: str, n: int, placement) -> dict:
     """One call of ``mesh_domain`` with the size ``R / n`` near the surface: its row."""
-    from dolfinx_universal.sizing_3d import surface_feature_size
+    from dolfinx_universal.sizing.surfaces import surface_feature_size
 
     rotation, u = placement
     h, period = 1.0 / n, np.cbrt(4.0) / n

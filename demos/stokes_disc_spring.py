@@ -100,7 +100,7 @@
 #
 # Run with `python demos/stokes_disc_spring.py [--quick] [--out DIR]`, also under mpirun.
 # `--quick` takes a coarser background and exactly 20 steps. The Stokes set-up is
-# {py:class}`dolfinx_universal.moving_problem.MovingStokes`.
+# {py:class}`dolfinx_universal.moving.problems.MovingStokes`.
 
 # +
 from __future__ import annotations
@@ -115,10 +115,10 @@ import numpy as np
 from dolfinx import mesh as dmesh
 
 import dolfinx_universal as du
+from dolfinx_universal.backgrounds.graded_tri import graded_mesh
 from dolfinx_universal.demo_support import demo_options, log, point_values, write_summary
-from dolfinx_universal.graded import graded_mesh
-from dolfinx_universal.moving import MovingDomain
-from dolfinx_universal.moving_problem import MovingStokes
+from dolfinx_universal.moving.domain import MovingDomain
+from dolfinx_universal.moving.problems import MovingStokes
 from dolfinx_universal.plotting import (
     boundary_polyline,
     field_triangulation,

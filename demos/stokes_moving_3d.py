@@ -31,12 +31,13 @@
 # It illustrates how to
 #
 # - conform one tetrahedral background to a moving domain with
-#   {py:class}`dolfinx_universal.moving.MovingDomain` (`update` rewrites the geometry in
-#   place and returns a {py:class}`~dolfinx_universal.moving.StepReport` with the timings,
+#   {py:class}`dolfinx_universal.moving.domain.MovingDomain` (`update` rewrites the geometry in
+#   place and returns a {py:class}`~dolfinx_universal.moving.domain.StepReport` with the timings,
 #   the quality and the validity of the curved cells),
-# - grade a BCC octree background ({py:func}`dolfinx_universal.graded_tet.graded_tet_mesh`)
+# - grade a BCC octree background
+# ({py:func}`dolfinx_universal.backgrounds.graded_tet.graded_tet_mesh`)
 #   around the whole path of a body, with `local_size=True`,
-# - solve Stokes flow on it with {py:class}`dolfinx_universal.moving_problem.MovingStokes`
+# - solve Stokes flow on it with {py:class}`dolfinx_universal.moving.problems.MovingStokes`
 #   (Taylor–Hood on the whole background with the cell indicator, an immersed container,
 #   forces and torques from the weak residual), here solved restricted to the fluid's
 #   unknowns, by MUMPS or by a block-preconditioned Krylov method whose preconditioner
@@ -129,8 +130,8 @@ from dolfinx import mesh as dmesh
 
 import dolfinx_universal as du
 from dolfinx_universal.demo_support import demo_options, log, write_summary
-from dolfinx_universal.moving import MovingDomain, StepReport
-from dolfinx_universal.moving_problem import DIRECT, ITERATIVE, MovingStokes
+from dolfinx_universal.moving.domain import MovingDomain, StepReport
+from dolfinx_universal.moving.problems import DIRECT, ITERATIVE, MovingStokes
 from dolfinx_universal.plotting import plot_tetrahedra, save
 
 B = 1.0  # container radius
@@ -171,7 +172,8 @@ EXACT_DRAG = 6 * np.pi * MU * A * wall_correction(A / B)
 # The drag is computed from the weak residual (below), whose error is a product of the
 # velocity and pressure errors; those are made mostly near the body, where the velocity
 # varies on the scale $a$. The background of (a) is a graded BCC octree
-# ({py:func}`~dolfinx_universal.graded_tet.graded_tet_mesh`: dihedral angles 60–90 degrees
+# ({py:func}`~dolfinx_universal.backgrounds.graded_tet.graded_tet_mesh`: dihedral angles 60–90
+# degrees
 # in its uniform parts, 45–120 at its level changes) of the box $(-1.2, 1.2)^3$, fine
 # (leaf side $h_b = 0.05$, quick $0.2$) within $2 h_b$ of every position of the sphere,
 # i.e. within $a + 2 h_b$ of the segment $\{s e : |s| \le 0.2\}$, growing by $0.5$ per
@@ -256,7 +258,7 @@ def balanced(background: dmesh.Mesh) -> dmesh.Mesh:
 # cells would lie on the few ranks whose slabs they cross; compact parts share both.
 
 # The background of (b) is the uniform A15 lattice
-# ({py:func}`~dolfinx_universal.background_tet.a15_mesh`, dihedral angles 53–79 degrees) of
+# ({py:func}`~dolfinx_universal.backgrounds.lattice_tet.a15_mesh`, dihedral angles 53–79 degrees) of
 # the same box, of size $h = 0.2$ (quick $0.25$): its vertices and tetrahedra inside the
 # container map onto themselves under the half turn $(x, y, z) \mapsto (-x, -y, z)$ (the
 # lattice's extent differs by one layer on the two sides of the box, outside the
@@ -328,7 +330,7 @@ def rotation_pin(background: dmesh.Mesh) -> np.ndarray:
 
 # ## The solver
 #
-# {py:class}`~dolfinx_universal.moving_problem.MovingStokes` assembles Taylor–Hood
+# {py:class}`~dolfinx_universal.moving.problems.MovingStokes` assembles Taylor–Hood
 # $P_2/P_1$ on the whole background with the indicator $\chi$ of the fluid cells,
 #
 # $$ a((u, p), (v, q)) = \int \chi \bigl( 2\mu\, \varepsilon(u) : \varepsilon(v)
@@ -336,7 +338,7 @@ def rotation_pin(background: dmesh.Mesh) -> np.ndarray:
 #
 # into one matrix at every step, with the unknowns of the cells outside the fluid fixed
 # at zero. Its forms are compiled once and assembled over the fluid's cells only
-# ({py:class}`~dolfinx_universal.moving_problem.ActiveForm`: every integrand carries
+# ({py:class}`~dolfinx_universal.moving.problems.ActiveForm`: every integrand carries
 # $\chi$, so the other cells would add zeros; the same matrix, at the cost of the fluid).
 # That matrix keeps the sparsity of the whole background (it serves every step):
 # at a step, the rows and columns of the fixed unknowns hold the identity and explicit

@@ -64,7 +64,7 @@
 # boundary traction converges faster than the direct boundary integral.
 #
 # The Stokes set-up (spaces, forms with $\chi$, wall, body and pressure conditions, the
-# MUMPS solve, the torque both ways) is {py:class}`dolfinx_universal.moving_problem.MovingStokes`.
+# MUMPS solve, the torque both ways) is {py:class}`dolfinx_universal.moving.problems.MovingStokes`.
 #
 # Run with `python demos/stokes_propeller.py [--quick] [--out DIR]`, also under mpirun.
 # `--quick` takes a coarser background and steps of 10 degrees. Written to `DIR`:
@@ -87,10 +87,10 @@ import ufl
 from dolfinx import fem, io
 
 import dolfinx_universal as du
+from dolfinx_universal.backgrounds.graded_tri import graded_mesh
 from dolfinx_universal.demo_support import demo_options, log, point_values, write_summary
-from dolfinx_universal.graded import graded_mesh
-from dolfinx_universal.moving import MovingDomain
-from dolfinx_universal.moving_problem import MovingStokes
+from dolfinx_universal.moving.domain import MovingDomain
+from dolfinx_universal.moving.problems import MovingStokes
 from dolfinx_universal.plotting import (
     boundary_polyline,
     field_triangulation,
@@ -136,7 +136,8 @@ r_min, r_max = float(radius(_theta).min()), float(radius(_theta).max())
 # The blades sweep the annulus $r_{\min} \le |x| \le r_{\max}$. The background is fine
 # there, plus a margin of $R_r = 3h$ (the band where $M_h$ moves vertices), and coarsens
 # away from it up to the walls. The quadtree mesher of
-# {py:func}`dolfinx_universal.graded.graded_mesh` tiles its cells with acute triangles
+# {py:func}`dolfinx_universal.backgrounds.graded_tri.graded_mesh` tiles its cells with acute
+# triangles
 # (angles between 31 and 78 degrees), so the angle conditions of the universal mesh (every
 # angle of the triangles near $\Gamma$ below $90°$, Rangarajan & Lew 2014) hold wherever the
 # blades go; its edges are between half the target size and the target. Sizes are local
@@ -147,7 +148,8 @@ r_min, r_max = float(radius(_theta).min()), float(radius(_theta).max())
 # radius $r_{\max}$ at half the annulus size. Across a level change the cell size jumps by a
 # factor of 2; the local size used by $M_h$ is therefore the largest incident cell diameter
 # smoothed to vary by at most 0.2 per unit length
-# ({py:data}`dolfinx_universal.conform.GRADATION`), so that the relaxation does not fold
+# ({py:data}`dolfinx_universal.conforming.universal.GRADATION`), so that the relaxation does not
+# fold
 # the triangles of the transition zones the blades sweep through.
 
 

@@ -19,9 +19,10 @@
 # It illustrates how to
 #
 # - mesh the fluid between two surfaces, `Domain(Sphere(c, b), [Sphere(c', a)])`, with
-#   curved tetrahedra of degree $q$ by {py:func}`dolfinx_universal.domain.mesh_domain`, on
+#   curved tetrahedra of degree $q$ by {py:func}`dolfinx_universal.meshing.domain.mesh_domain`, on
 #   a uniform background of a given size $h$,
-# - tell the two surfaces apart (both are tagged {py:data}`dolfinx_universal.conform.IMMERSED`)
+# - tell the two surfaces apart (both are tagged
+# {py:data}`dolfinx_universal.conforming.universal.IMMERSED`)
 #   by the position of their faces,
 # - solve the Stokes problem with $P_2/P_1$ Taylor–Hood elements and pure velocity data:
 #   MUMPS with one pinned pressure degree of freedom, or MINRES with a block-diagonal
@@ -189,7 +190,7 @@ def geometry_estimate(lam: float, da: float, db: float) -> float:
 
 # ## The meshes
 #
-# {py:func}`dolfinx_universal.domain.mesh_domain` sizes its background from the surfaces:
+# {py:func}`dolfinx_universal.meshing.domain.mesh_domain` sizes its background from the surfaces:
 # near them, the local feature size (here the smaller of the radius of curvature and half
 # the gap between the spheres) over `size_factor`, at most `h`. Between two spheres this
 # gives a nearly uniform size anyway (the feature sizes of the two surfaces are $0.25$ and

@@ -7,10 +7,12 @@ except ImportError:  # DOLFINx from the official Docker images or conda
 
 from importlib.metadata import PackageNotFoundError, version
 
-from . import io
-from .background import equilateral_mesh, refine_uniform
-from .background_tet import a15_mesh, bcc_mesh
-from .boundaries import (
+from dolfinx_universal import io
+from dolfinx_universal.backgrounds.graded_tet import graded_tet_mesh
+from dolfinx_universal.backgrounds.graded_tri import graded_mesh
+from dolfinx_universal.backgrounds.lattice_tet import a15_mesh, bcc_mesh
+from dolfinx_universal.backgrounds.lattice_tri import equilateral_mesh, refine_uniform
+from dolfinx_universal.boundaries.curves import (
     Boundary,
     Circle,
     Domain,
@@ -20,20 +22,30 @@ from .boundaries import (
     PolarCurve,
     RigidMotion,
 )
-from .classify import conditioning_angle, positive_edges, positively_cut
-from .conform import IMMERSED, OUTER, ConformingMesh, UniversalMesh, conform
-from .constraints import SlipConstraint
-from .curved import CurvedMesh, boundary_dof_data, curved_mesh
-from .domain import Certificate, MeshedDomain, mesh_domain
-from .graded import graded_mesh
-from .graded_tet import graded_tet_mesh
-from .moving import MovingDomain
-from .moving_problem import MovingLinearProblem, MovingStokes
-from .quality import quality_report
-from .relax import relax_vertices
-from .sizing import box_size, mark_cells, refine_size, threshold
-from .surfaces import Ellipsoid, ImplicitSurface, Sphere, Surface, Torus
-from .validation import MeshingError
+from dolfinx_universal.boundaries.surfaces import (
+    Ellipsoid,
+    ImplicitSurface,
+    Sphere,
+    Surface,
+    Torus,
+)
+from dolfinx_universal.conforming.classify import conditioning_angle, positive_edges, positively_cut
+from dolfinx_universal.conforming.quality import quality_report
+from dolfinx_universal.conforming.relax import relax_vertices
+from dolfinx_universal.conforming.universal import (
+    IMMERSED,
+    OUTER,
+    ConformingMesh,
+    UniversalMesh,
+    conform,
+)
+from dolfinx_universal.core.collective import MeshingError
+from dolfinx_universal.curved.constraints import SlipConstraint
+from dolfinx_universal.curved.maps import CurvedMesh, boundary_dof_data, curved_mesh
+from dolfinx_universal.meshing.domain import Certificate, MeshedDomain, mesh_domain
+from dolfinx_universal.moving.domain import MovingDomain
+from dolfinx_universal.moving.problems import MovingLinearProblem, MovingStokes
+from dolfinx_universal.sizing.fields import box_size, mark_cells, refine_size, threshold
 
 try:
     __version__ = version("dolfinx_universal")

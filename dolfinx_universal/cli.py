@@ -18,13 +18,13 @@ from mpi4py import MPI
 import numpy as np
 import numpy.typing as npt
 
-from ._geometry import Float
+from dolfinx_universal.core.arrays import Float
 
 if TYPE_CHECKING:
     from dolfinx import mesh as dmesh
 
-    from .boundaries import Boundary
-    from .conform import ConformingMesh
+    from dolfinx_universal.boundaries.curves import Boundary
+    from dolfinx_universal.conforming.universal import ConformingMesh
 
 __all__ = [
     "ArgumentError",
@@ -474,7 +474,7 @@ def implicit_functions(
 def _version() -> str:
     import dolfinx
 
-    from . import __version__
+    from dolfinx_universal import __version__
 
     return f"{__version__} (DOLFINx {dolfinx.__version__})"
 
@@ -616,7 +616,7 @@ def _shape_options(p: argparse.ArgumentParser) -> None:
 
 def _meshing_options(p: argparse.ArgumentParser) -> None:
     """The meshing options of :func:`build_parser`: sizes, background and method parameters."""
-    from .curved import MAPS
+    from dolfinx_universal.curved.maps import MAPS
 
     m = p.add_argument_group("meshing")
     m.add_argument(
@@ -745,7 +745,12 @@ def make_boundary(args: argparse.Namespace) -> tuple[Boundary, dict[str, Any]]:
     ArgumentError
         For invalid shape parameters or an unreadable spline file.
     """
-    from .boundaries import Circle, Ellipse, PeriodicSpline, PolarCurve
+    from dolfinx_universal.boundaries.curves import (
+        Circle,
+        Ellipse,
+        PeriodicSpline,
+        PolarCurve,
+    )
 
     _check_shape_options(args)
     dim = 3 if _is_surface(args) else 2
@@ -803,7 +808,12 @@ def make_boundary(args: argparse.Namespace) -> tuple[Boundary, dict[str, Any]]:
 
 def _make_surface(args: argparse.Namespace, center: Float) -> tuple[Boundary, dict[str, Any]]:
     """The surface of ``--sphere``, ``--ellipsoid``, ``--torus`` or ``--implicit``."""
-    from .surfaces import Ellipsoid, ImplicitSurface, Sphere, Torus
+    from dolfinx_universal.boundaries.surfaces import (
+        Ellipsoid,
+        ImplicitSurface,
+        Sphere,
+        Torus,
+    )
 
     c = center.tolist()
     if args.sphere is not None:
@@ -922,9 +932,9 @@ def _mesh(
     :func:`mesh_domain` (its stages' times recorded where ``record(stage)``). Returns the
     conforming mesh, the final mesh and its facet tags, the background, the certificate
     (``None`` with ``--uniform``) and the curved map's smallest Jacobian ratio (if curved)."""
-    from .conform import conform
-    from .curved import curved_mesh
-    from .domain import mesh_domain
+    from dolfinx_universal.conforming.universal import conform
+    from dolfinx_universal.curved.maps import curved_mesh
+    from dolfinx_universal.meshing.domain import mesh_domain
 
     certificate = None
     curved_info: dict[str, Any] = {}
@@ -978,7 +988,7 @@ def _write_mesh_files(
     and, up to degree 2, XDMF (collective). Returns the names of the files written."""
     from dolfinx import io
 
-    from .io import tags_path, write_mesh
+    from dolfinx_universal.io import tags_path, write_mesh
 
     write_mesh(out / "mesh.vtkhdf", msh, tags)  # a checkpoint for any degree, with its tags
     files = ["mesh.vtkhdf", tags_path(out / "mesh.vtkhdf").name]
@@ -1013,12 +1023,12 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
     """
     import dolfinx
 
-    from .background import equilateral_mesh
-    from .conform import IMMERSED, OUTER
-    from .demo_support import versions
-    from .domain import DEFAULT_MAP, default_box
-    from .quality import quality_report
-    from .validation import MeshingError
+    from dolfinx_universal.backgrounds.lattice_tri import equilateral_mesh
+    from dolfinx_universal.conforming.quality import quality_report
+    from dolfinx_universal.conforming.universal import IMMERSED, OUTER
+    from dolfinx_universal.core.collective import MeshingError
+    from dolfinx_universal.demo_support import versions
+    from dolfinx_universal.meshing.domain import DEFAULT_MAP, default_box
 
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
@@ -1085,7 +1095,7 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
 
     if plot:
         t = time.perf_counter()
-        from .plotting import plot_conforming, save
+        from dolfinx_universal.plotting import plot_conforming, save
 
         fig, _ = plot_conforming(None, cm, mesh=msh, title=_title(shape, h, args))
         save(fig, out / "mesh.png")
@@ -1153,11 +1163,11 @@ def _run_surface(
     """:func:`run` for a surface: tetrahedra (collective)."""
     import dolfinx
 
-    from .background_tet import a15_mesh
-    from .conform import IMMERSED, OUTER
-    from .demo_support import versions
-    from .quality import quality_report
-    from .validation import MeshingError
+    from dolfinx_universal.backgrounds.lattice_tet import a15_mesh
+    from dolfinx_universal.conforming.quality import quality_report
+    from dolfinx_universal.conforming.universal import IMMERSED, OUTER
+    from dolfinx_universal.core.collective import MeshingError
+    from dolfinx_universal.demo_support import versions
 
     timings: dict[str, float] = {}
     extent = float((bbox[1] - bbox[0]).max())
@@ -1283,7 +1293,7 @@ def _run_surface(
 def _plot_surface_mesh(comm: MPI.Comm, cm: Any, path: Path, title: str, low: float) -> None:
     """Clipped view and surface of a tetrahedral conforming mesh, coloured by quality (the
     smallest dihedral angle of each cell, from ``low`` to the regular tetrahedron's)."""
-    from .plotting import plot_tetrahedra, save
+    from dolfinx_universal.plotting import plot_tetrahedra, save
 
     fig, axes = None, [None, None]
     if comm.rank == 0:
@@ -1356,7 +1366,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     cannot be meshed. Errors are reported as one line ``dolfinx-universal: error: ...`` on
     standard error (rank 0 only), without a traceback.
     """
-    from .validation import MeshingError
+    from dolfinx_universal.core.collective import MeshingError
 
     comm = MPI.COMM_WORLD
     parser = build_parser()

@@ -55,7 +55,7 @@ def versions() -> dict[str, str]:
     import numpy as np
     import ufl
 
-    from . import __version__
+    from dolfinx_universal import __version__
 
     return {
         "dolfinx_universal": __version__,

@@ -30,7 +30,7 @@ from dolfinx import fem, graph
 from dolfinx import mesh as dmesh
 from dolfinx.io import VTXWriter, distribute_entity_data, vtkhdf
 
-from .background import ghosted_partitioner
+from dolfinx_universal.backgrounds.lattice_tri import ghosted_partitioner
 
 __all__ = ["read_mesh", "redistribute", "tags_path", "write_fields", "write_mesh"]
 
@@ -288,7 +288,7 @@ def read_mesh(
         The VTKHDF file.
     variant
         Lagrange variant of the returned coordinate element; the default ``gll_warped`` is
-        that of :func:`~dolfinx_universal.curved.curved_mesh` (irrelevant for degree <= 2).
+        that of :func:`~dolfinx_universal.curved.maps.curved_mesh` (irrelevant for degree <= 2).
 
     Returns
     -------
@@ -361,9 +361,9 @@ def redistribute(
     on the mesh is shared as unevenly. This recreates the mesh with the same cells and
     geometry nodes (any degree, the same coordinate element) and shared-facet ghosts,
     partitioned by DOLFINx's graph partitioner (SCOTCH in the wheel), and carries the facet
-    tags over. Meant for static meshes (:func:`~dolfinx_universal.domain.mesh_domain`):
+    tags over. Meant for static meshes (:func:`~dolfinx_universal.meshing.domain.mesh_domain`):
     the result is a new mesh, unrelated to the background, so a
-    :class:`~dolfinx_universal.moving.MovingDomain` keeps its own.
+    :class:`~dolfinx_universal.moving.domain.MovingDomain` keeps its own.
 
     Parameters
     ----------

@@ -20,8 +20,8 @@ from mpi4py import MPI
 import numpy as np
 import numpy.typing as npt
 
-from . import _tetrahedron
-from ._geometry import Float, lagrange_element
+from dolfinx_universal.cells import tet as _tetrahedron
+from dolfinx_universal.core.arrays import Float, lagrange_element
 
 if TYPE_CHECKING:
     from dolfinx import fem
@@ -30,8 +30,8 @@ if TYPE_CHECKING:
     from matplotlib.collections import PolyCollection
     from matplotlib.figure import Figure
 
-    from .conform import ConformingMesh
-    from .curved import CurvedMesh
+    from dolfinx_universal.conforming.universal import ConformingMesh
+    from dolfinx_universal.curved.maps import CurvedMesh
 
 __all__ = [
     "KIND_NAMES",
@@ -160,7 +160,7 @@ def gather_cells(msh, values=None, root=0, *, cells=None):
         Rank that receives the data.
     cells
         Optional local cells to gather (e.g. the active cells of a
-        :class:`~dolfinx_universal.moving.MovingDomain`); ghosts among them are ignored.
+        :class:`~dolfinx_universal.moving.domain.MovingDomain`); ghosts among them are ignored.
         Default: every owned cell.
 
     Returns
@@ -849,7 +849,7 @@ def plot_conforming(
         Draw the background mesh underneath.
     mesh
         Mesh drawn as the conforming mesh instead of ``cm.mesh``, e.g. the curved mesh of
-        :func:`dolfinx_universal.curved.curved_mesh` (a ``CurvedMesh`` or its ``.mesh``;
+        :func:`dolfinx_universal.curved.maps.curved_mesh` (a ``CurvedMesh`` or its ``.mesh``;
         drawn with curved edges). Kinds and Gamma_h need the same local cells as ``cm.mesh``
         (true for curved meshes, which share its topology); otherwise cells are shaded
         uniformly and Gamma_h is not drawn.
@@ -953,7 +953,7 @@ def _gather_kinds(
     and which of its edges lie on Gamma_h (``IMMERSED`` in ``tags``, else in ``cm``'s
     tags), ``(n, 4)`` int8; no data where ``msh`` does not have ``cm.mesh``'s local cells
     on every rank (collective)."""
-    from .conform import IMMERSED
+    from dolfinx_universal.conforming.universal import IMMERSED
 
     sub = cm.mesh
     local_ok = int(msh is sub or msh.topology.index_map(2).size_local == _owned_cells(sub))
@@ -1161,7 +1161,7 @@ def plot_function(
     The field is drawn with :meth:`~matplotlib.axes.Axes.tripcolor` on the sub-triangles of
     :func:`field_triangulation` (each curved cell subdivided by its coordinate map), so it
     fills the cells drawn by :func:`plot_mesh` with no gap along a curved boundary. For a
-    :class:`~dolfinx_universal.moving.MovingDomain` pass ``active=md.active`` (or
+    :class:`~dolfinx_universal.moving.domain.MovingDomain` pass ``active=md.active`` (or
     ``cells=md.active_cells``) to draw the fluid cells only. Collective: call on every rank;
     rank 0 draws.
 
@@ -1183,7 +1183,7 @@ def plot_function(
     show_outline
         Draw the boundary edges of the drawn cells (thin, dark).
     boundary, boundary_color, boundary_samples
-        An exact boundary (:class:`~dolfinx_universal.boundaries.Boundary`) drawn on top.
+        An exact boundary (:class:`~dolfinx_universal.boundaries.curves.Boundary`) drawn on top.
     inset, inset_loc
         Zoom window ``(x0, y0, x1, y1)`` drawn in an inset, in the corner ``inset_loc``
         (``"upper right"``...; default: the corner farthest from the window).
@@ -1478,7 +1478,8 @@ def plot_tetrahedra(
     Parameters
     ----------
     mesh
-        A :class:`~dolfinx_universal.conform.ConformingMesh` (its mesh and facet tags) or a
+        A :class:`~dolfinx_universal.conforming.universal.ConformingMesh` (its mesh and facet tags)
+        or a
         tetrahedron mesh (degree 1: cells drawn straight through their vertices).
     ax
         3D axes (``projection="3d"``) on rank 0, or ``None`` for a new figure there.

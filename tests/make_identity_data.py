@@ -29,7 +29,7 @@ from dolfinx import fem
 from dolfinx import mesh as dmesh
 
 import dolfinx_universal as du
-from dolfinx_universal.moving import MovingDomain
+from dolfinx_universal.moving.domain import MovingDomain
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "benchmarks"))

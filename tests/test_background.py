@@ -12,9 +12,9 @@ from dolfinx import fem
 from dolfinx import mesh as dmesh
 
 import dolfinx_universal as du
-from dolfinx_universal import background as bg
-from dolfinx_universal.background import equilateral_triangulation
-from dolfinx_universal.classify import cell_diameters, interior_angles, signed_areas
+from dolfinx_universal.backgrounds import lattice_tri as bg
+from dolfinx_universal.backgrounds.lattice_tri import equilateral_triangulation
+from dolfinx_universal.conforming.classify import cell_diameters, interior_angles, signed_areas
 
 comm = MPI.COMM_WORLD
 

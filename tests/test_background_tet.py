@@ -16,8 +16,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 import dolfinx_universal as du
-from dolfinx_universal import background as bg
-from dolfinx_universal import background_tet as bt
+from dolfinx_universal.backgrounds import lattice_tet as bt
+from dolfinx_universal.backgrounds import lattice_tri as bg
 
 comm = MPI.COMM_WORLD
 

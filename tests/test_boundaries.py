@@ -11,7 +11,7 @@ import pytest
 from scipy.interpolate import CubicSpline
 from scipy.optimize import minimize_scalar
 
-from dolfinx_universal.boundaries import (
+from dolfinx_universal.boundaries.curves import (
     Boundary,
     Circle,
     Domain,
@@ -482,7 +482,7 @@ def test_window_clearance_is_a_lower_bound(name):
     is attained where the nearest such sample is among the neighbours searched: against
     all pairs of samples. ``annulus`` has two loops; ``neck`` comes back within a few
     sample spacings of itself."""
-    from dolfinx_universal.boundaries import _WINDOWS, _window_clearance
+    from dolfinx_universal.boundaries.curves import _WINDOWS, _window_clearance
 
     if name == "neck":  # a dumbbell whose waist is 0.004 wide
         t = np.linspace(0.0, 2.0 * np.pi, 400, endpoint=False)
@@ -603,7 +603,7 @@ def test_onto_gamma_polar(monkeypatch):
     (not the closest point) or, at the flanks, the Newton step onto the normal line; points
     far off take the closest point; a subclass that changes the geometry gets closest
     points."""
-    from dolfinx_universal.boundaries import ONTO_REACH
+    from dolfinx_universal.boundaries.curves import ONTO_REACH
 
     def r(t):
         return 0.12 + 0.38 * np.exp(-(np.sin(1.5 * t) ** 2) / 0.3)

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from dolfinx_universal import classify
-from dolfinx_universal.background import equilateral_triangulation
+from dolfinx_universal.backgrounds.lattice_tri import equilateral_triangulation
+from dolfinx_universal.conforming import classify as classify
 
 
 def _setup(seed: int):
@@ -108,7 +108,7 @@ def test_straight_map():
 
 
 def test_quality_measures_equilateral():
-    from dolfinx_universal.quality import edge_ratio, radius_ratio
+    from dolfinx_universal.conforming.quality import edge_ratio, radius_ratio
 
     x = np.array([[0.0, 0.0], [1.0, 0.0], [0.5, np.sqrt(3) / 2], [0.0, 1.0]])
     cells = np.array([[0, 1, 2], [0, 1, 3]])

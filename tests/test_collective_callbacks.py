@@ -13,7 +13,7 @@ import pytest
 from dolfinx import fem
 
 import dolfinx_universal as du
-from dolfinx_universal.validation import MeshingError
+from dolfinx_universal.core.collective import MeshingError
 
 comm = MPI.COMM_WORLD
 LAST = comm.rank == comm.size - 1

@@ -13,8 +13,11 @@ from dolfinx import mesh as dmesh
 from scipy.spatial import cKDTree
 
 import dolfinx_universal as du
-from dolfinx_universal.background import create_background_mesh, equilateral_triangulation
-from dolfinx_universal.classify import signed_areas
+from dolfinx_universal.backgrounds.lattice_tri import (
+    create_background_mesh,
+    equilateral_triangulation,
+)
+from dolfinx_universal.conforming.classify import signed_areas
 
 comm = MPI.COMM_WORLD
 

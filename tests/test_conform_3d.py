@@ -14,8 +14,8 @@ import ufl
 from dolfinx import fem
 
 import dolfinx_universal as du
-from dolfinx_universal._tetrahedron import dihedral_angles, signed_volumes
-from dolfinx_universal.background_tet import a15_mesh, bcc_mesh
+from dolfinx_universal.backgrounds.lattice_tet import a15_mesh, bcc_mesh
+from dolfinx_universal.cells.tet import dihedral_angles, signed_volumes
 
 comm = MPI.COMM_WORLD
 C = np.array([0.0123, 0.0071, 0.0049])  # off the lattice's symmetry planes

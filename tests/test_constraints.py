@@ -15,7 +15,7 @@ from conftest import needs_ranks
 from dolfinx import fem
 
 import dolfinx_universal as du
-from dolfinx_universal.constraints import SlipConstraint, facet_frames
+from dolfinx_universal.curved.constraints import SlipConstraint, facet_frames
 
 comm = MPI.COMM_WORLD
 CENTRE = (0.0123, -0.0234)

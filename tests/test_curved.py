@@ -11,7 +11,7 @@ from dolfinx import fem
 from dolfinx.fem.petsc import LinearProblem
 
 import dolfinx_universal as du
-from dolfinx_universal.curved import (
+from dolfinx_universal.curved.maps import (
     _cell_nodes,
     jacobian_ratio,
     map_nodes,

@@ -14,9 +14,9 @@ from dolfinx import fem
 from dolfinx.fem.petsc import LinearProblem
 
 import dolfinx_universal as du
-from dolfinx_universal import _curved_tet
-from dolfinx_universal.background_tet import a15_mesh, bcc_mesh
-from dolfinx_universal.curved import _curved_cells
+from dolfinx_universal.backgrounds.lattice_tet import a15_mesh, bcc_mesh
+from dolfinx_universal.curved import maps_tet as _curved_tet
+from dolfinx_universal.curved.maps import _curved_cells
 
 comm = MPI.COMM_WORLD
 C = np.array([0.0123, 0.0071, 0.0049])  # off the lattice's symmetry planes
@@ -88,7 +88,7 @@ def test_compiled_curved_map_is_numpy_s(conformed, name, monkeypatch):
     projected once, the node writes, the degree-q dofmap) and with the numpy code: bitwise
     the same geometry and dofmap, at q = 2-4 and for the maps I (the background's points
     projected) and I~."""
-    from dolfinx_universal._compiled import relax_kernels
+    from dolfinx_universal.core.compiled import relax_kernels
 
     cm = conformed(name)
     cases = [(q, kind) for q in (2, 3, 4) for kind in ("I", "I~")]
@@ -111,7 +111,7 @@ def test_compiled_curved_map_is_numpy_s(conformed, name, monkeypatch):
 
 def test_distinct_rows():
     """Each set of bitwise equal rows once, in order of appearance; -0.0 and 0.0 differ."""
-    from dolfinx_universal._geometry import distinct_rows
+    from dolfinx_universal.core.arrays import distinct_rows
 
     rng = np.random.default_rng(3)
     base = rng.random((50, 3))

@@ -14,7 +14,7 @@ from dolfinx import fem
 from scipy.spatial import cKDTree
 
 import dolfinx_universal as du
-from dolfinx_universal.background import equilateral_triangulation
+from dolfinx_universal.backgrounds.lattice_tri import equilateral_triangulation
 
 comm = MPI.COMM_WORLD
 
@@ -267,7 +267,7 @@ class FailsOnRank1(du.Circle):
 def test_collective_errors_never_hang():
     """A callback failing on one rank only: the same error on every rank (a hang here is
     caught by the timeout of .ci/test). Per-rank reports merge into one global count."""
-    from dolfinx_universal.validation import Problem, raise_collective
+    from dolfinx_universal.core.collective import Problem, raise_collective
 
     bg = du.equilateral_mesh(comm, [[-1, -1], [1, 1]], 0.1)
     with pytest.raises(du.MeshingError, match="KeyError") as info:

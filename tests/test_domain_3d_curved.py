@@ -15,9 +15,9 @@ from dolfinx import fem
 from dolfinx import mesh as dmesh
 
 import dolfinx_universal as du
-from dolfinx_universal import domain as du_domain
 from dolfinx_universal.cli import main
 from dolfinx_universal.io import read_mesh
+from dolfinx_universal.meshing import domain as du_domain
 
 comm = MPI.COMM_WORLD
 C = np.array([0.0123, 0.0071, 0.0049])  # off the lattice's symmetry planes

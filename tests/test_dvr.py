@@ -1,4 +1,4 @@
-"""The directional vertex relaxation of tetrahedra (dolfinx_universal._dvr)."""
+"""The directional vertex relaxation of tetrahedra (dolfinx_universal.conforming.relax_tet)."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ from mpi4py import MPI
 import numpy as np
 import pytest
 
-from dolfinx_universal import _dvr
-from dolfinx_universal import _tetrahedron as tet
-from dolfinx_universal.background_tet import a15_tetrahedralisation
+from dolfinx_universal.backgrounds.lattice_tet import a15_tetrahedralisation
+from dolfinx_universal.cells import tet as tet
+from dolfinx_universal.conforming import relax_tet as _dvr
 
 
 class _SerialMap:
@@ -286,7 +286,7 @@ def test_star_terms_match_star_faces():
 def test_vertex_colours_graph():
     """The colours of relax.vertex_colours (first fit in the same rounds), a proper
     colouring of the vertices of each cell; -1 corners are not coloured."""
-    from dolfinx_universal.relax import _Sub, coordinate_priority, vertex_colours
+    from dolfinx_universal.conforming.relax import _Sub, coordinate_priority, vertex_colours
 
     x, _, cells, inner = _perturbed_a15(4)
     local = np.full(len(x), -1)
@@ -308,8 +308,8 @@ def test_compiled_colours_and_entries_are_numpy_s():
     the star entries, their facets, orientations and ratings of the numpy set-up, bitwise:
     on perturbed A15 stars with turned (negatively oriented) cells, for two orders of the
     (distinct) priorities."""
-    from dolfinx_universal._compiled import relax_kernels
-    from dolfinx_universal.relax import _Sub, coordinate_priority
+    from dolfinx_universal.conforming.relax import _Sub, coordinate_priority
+    from dolfinx_universal.core.compiled import relax_kernels
 
     kernels = relax_kernels()
     assert kernels is not None  # DOLFINx's C compiler (FFCx's) builds them
@@ -340,8 +340,8 @@ def test_compiled_relaxation_is_numpy_s(monkeypatch, frame):
     compass, slides with capped edges of Gamma_h, early-out ratings) move the vertices
     exactly as the numpy visits do, bitwise: inside vertices of perturbed A15 patches and
     vertices sliding on a plane, with and without a turned frame."""
-    from dolfinx_universal._compiled import relax_kernels
-    from dolfinx_universal.relax import RelaxFrame
+    from dolfinx_universal.conforming.relax import RelaxFrame
+    from dolfinx_universal.core.compiled import relax_kernels
 
     assert relax_kernels() is not None
     angle = 0.4
@@ -386,7 +386,7 @@ def test_compiled_moving_tetrahedra_are_numpy_s(monkeypatch):
     same geometry, bitwise, with the C kernels (relaxation, affine nodes) and with the numpy
     code."""
     import dolfinx_universal as du
-    from dolfinx_universal._compiled import relax_kernels
+    from dolfinx_universal.core.compiled import relax_kernels
 
     comm = MPI.COMM_SELF
     bg = du.a15_mesh(comm, [[-1.2] * 3, [1.2] * 3], 0.16)

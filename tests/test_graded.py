@@ -10,15 +10,15 @@ from conftest import needs_ranks
 from test_background import canonical_cells, check_shared_facet_ghosts
 
 import dolfinx_universal  # noqa: F401  (initialises the DOLFINx wheel before dolfinx imports)
-from dolfinx_universal import graded as gr
-from dolfinx_universal._geometry import edge_lengths, interior_angles, signed_areas
-from dolfinx_universal.graded import (
+from dolfinx_universal.backgrounds import graded_tri as gr
+from dolfinx_universal.backgrounds.graded_tri import (
     EDGE_FACTOR,
     STENCIL_ANGLE_RANGE,
     acute_quadtree_triangulation,
     graded_mesh,
     local_size,
 )
+from dolfinx_universal.cells.tri import edge_lengths, interior_angles, signed_areas
 
 BOX = [[-0.7, -0.7], [0.7, 0.7]]
 H_FINE, H_COARSE, SLOPE = 0.01, 0.1, 0.5

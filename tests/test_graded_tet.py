@@ -19,7 +19,7 @@ from test_background_tet import (
 )
 
 import dolfinx_universal as du
-from dolfinx_universal import graded_tet as gt
+from dolfinx_universal.backgrounds import graded_tet as gt
 
 comm = MPI.COMM_WORLD
 BOX = np.array([[-1.0, -0.8, -0.9], [1.1, 0.9, 0.7]])
@@ -203,7 +203,7 @@ def test_size_function_errors_on_every_rank():
 def test_mesh():
     """The DOLFINx mesh: positively oriented, its volume, local vertex sizes of a graded
     background (the longest edge at each vertex, smoothed)."""
-    from dolfinx_universal import background as bg
+    from dolfinx_universal.backgrounds import lattice_tri as bg
 
     msh = gt.graded_tet_mesh(comm, BOX, shell, 0.5, 0.08)
     x = msh.geometry.x
@@ -266,7 +266,7 @@ EXTERIOR_BOX = [[-2.0] * 3, [2.0] * 3]
 def test_levels():
     """The finest level is chosen so that the component sizes are levels (base 2^k) as far
     as that saves cells; every size is at most its target."""
-    from dolfinx_universal.domain import _levels
+    from dolfinx_universal.meshing.domain import _levels
 
     out = _levels(np.array([0.0634, 0.0333]), np.array([12.6, 0.13]), 5.0, 0.25)
     assert out[0] == pytest.approx(0.0634) and out[1] == pytest.approx(0.0317)
@@ -281,7 +281,7 @@ def test_auto_background():
     """``tet_background="auto"``: the graded octree where it has fewer than half the
     tetrahedra of the A15 background (a small body in a large box), else A15 (a torus
     whose band fills its box)."""
-    from dolfinx_universal.domain import _GradedTetPlan, _tet_plan, _UniformPlan
+    from dolfinx_universal.meshing.domain import _GradedTetPlan, _tet_plan, _UniformPlan
 
     plan = _tet_plan(comm, EXTERIOR, 0.8, 1, EXTERIOR_BOX, 3.0, None, "auto", 5e6)
     assert isinstance(plan, _GradedTetPlan) and plan.top == pytest.approx(8 * plan.base)
@@ -302,7 +302,7 @@ def test_auto_falls_back_to_a15():
     size where the refined octree would exceed ``max_cells`` (there: both components'
     bands halved, 6.8e6 tetrahedra estimated, the A15 one 2.4e6; mesh_domain raised) or
     have more tetrahedra; else the refined octree. Once only; never for ``"graded"``."""
-    from dolfinx_universal.domain import _GradedTetPlan, _refined, _tet_plan, _UniformPlan
+    from dolfinx_universal.meshing.domain import _GradedTetPlan, _refined, _tet_plan, _UniformPlan
 
     place = np.array([C + [0.3, 0.0, 0.0]])  # on the sphere
     plan = _tet_plan(comm, EXTERIOR, 0.8, 1, EXTERIOR_BOX, 3.0, None, "auto", 5e6)
@@ -339,7 +339,7 @@ def test_mesh_domain_graded():
     assert f"{cert.num_cells} tetrahedra (degree 1) from the graded BCC octree background" in text
     assert "1 closed surface(s), one per surface" in text
     assert "  dihedral angles in [" in text and "triangle" not in text and "loop" not in text
-    from dolfinx_universal.domain import _GradedTetPlan
+    from dolfinx_universal.meshing.domain import _GradedTetPlan
 
     plan = _GradedTetPlan.create(comm, EXTERIOR, 0.8, 1, EXTERIOR_BOX, 3.0, None)
     assert cert.num_background_cells == plan.count(comm)
@@ -366,7 +366,7 @@ def test_mesh_domain_graded():
 def test_plan_refine():
     """A failed check near a component halves that component's size (a level down), with
     denser band sources; the others keep theirs (here no finer band reaches into theirs)."""
-    from dolfinx_universal.domain import _GradedTetPlan
+    from dolfinx_universal.meshing.domain import _GradedTetPlan
 
     two = du.Domain(None, [du.Sphere(C - [0.8, 0, 0], 0.3), du.Sphere(C + [1.0, 0, 0], 0.15)])
     plan = _GradedTetPlan.create(comm, two, 0.8, 1, [[-2.0] * 3, [2.0] * 3], 3.0, None)
@@ -395,7 +395,7 @@ def _torus_in_large_box() -> tuple[du.Torus, np.ndarray, float]:
     box = np.array([1.5 * (lo - hi) + 0.5 * (lo + hi), 1.5 * (hi - lo) + 0.5 * (lo + hi)])
     box[1] += period
     torus = du.Torus(u * period, 1.0, 0.35, axis=rotation[:, 2])
-    from dolfinx_universal.sizing_3d import surface_feature_size
+    from dolfinx_universal.sizing.surfaces import surface_feature_size
 
     factor = 4 * float(surface_feature_size(torus, 0.25).feature.min())
     return torus, box, factor
@@ -405,7 +405,7 @@ def test_auto_takes_a15_for_angles():
     """``auto`` conforms the A15 background where the octree it chose gave dihedral angles
     outside ``AUTO_DIHEDRAL`` (the BCC band: 29.1 degrees, A15: 34.4); ``graded`` keeps the
     octree; if A15 fails, the octree's mesh is kept."""
-    from dolfinx_universal import domain
+    from dolfinx_universal.meshing import domain as domain
 
     torus, box, factor = _torus_in_large_box()
     md = du.mesh_domain(comm, torus, 1.0, size_factor=factor, box=box)

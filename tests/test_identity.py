@@ -165,8 +165,8 @@ def _affine_of(background, options, boundary, q, cm_x) -> np.ndarray:
 @pytest.mark.skip_in_parallel
 def test_step_quality_is_that_of_all_active_cells():
     """The step report computes quality near Gamma only: it equals the full computation."""
-    from dolfinx_universal.moving import MovingDomain
-    from dolfinx_universal.quality import cell_quality
+    from dolfinx_universal.conforming.quality import cell_quality
+    from dolfinx_universal.moving.domain import MovingDomain
 
     name, kind, options, build = next(c for c in CASES if c[0] == "moving_graded")
     background, steps = build()
@@ -188,7 +188,7 @@ def test_cell_locator_agrees_with_dolfinx():
     from dolfinx import geometry
 
     import dolfinx_universal as du
-    from dolfinx_universal.checks import CellLocator
+    from dolfinx_universal.conforming.checks import CellLocator
 
     background = du.equilateral_mesh(MPI.COMM_SELF, [[-1, -1], [1, 1]], 0.1)
     um = du.UniversalMesh(background, relax=False)
@@ -211,7 +211,7 @@ def test_cell_locator_agrees_with_dolfinx():
 @pytest.mark.skip_in_parallel
 def test_domain_leaving_the_background_is_reported():
     import dolfinx_universal as du
-    from dolfinx_universal.validation import MeshingError
+    from dolfinx_universal.core.collective import MeshingError
 
     background = du.equilateral_mesh(MPI.COMM_SELF, [[-1, -1], [1, 1]], 0.05)
     with pytest.raises(MeshingError, match="leaves the background mesh"):

@@ -380,7 +380,7 @@ def test_redistribute_curved_tetrahedra(curved_tets, name):
 def test_redistribute_from_one_rank():
     """All cells on rank 0 (the others hold none, as the ranks Gamma does not cross): the
     cells end up shared, the same mesh. (A first version failed on the empty ranks.)"""
-    from dolfinx_universal.background import create_mesh, layout_partitioner
+    from dolfinx_universal.backgrounds.lattice_tri import create_mesh, layout_partitioner
 
     square = dmesh.create_unit_square(MPI.COMM_SELF, 6, 6)
     cells = square.geometry.dofmaps[0] if comm.rank == 0 else np.zeros((0, 3), np.int64)

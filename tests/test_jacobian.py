@@ -5,11 +5,9 @@ import time
 import numpy as np
 import pytest
 
-from dolfinx_universal import _bernstein_tet as _tet
-from dolfinx_universal._curved_tet import reference_nodes as tet_reference_nodes_lam
-from dolfinx_universal._geometry import lagrange_element
-from dolfinx_universal.curved import jacobian_ratio, reference_nodes
-from dolfinx_universal.jacobian import (
+from dolfinx_universal.core.arrays import lagrange_element
+from dolfinx_universal.curved import bounds_tet as _tet
+from dolfinx_universal.curved.bounds import (
     MAX_DEGREE,
     _subdivision,
     _to_bernstein,
@@ -20,6 +18,8 @@ from dolfinx_universal.jacobian import (
     jacobian_bounds,
     jacobian_determinant,
 )
+from dolfinx_universal.curved.maps import jacobian_ratio, reference_nodes
+from dolfinx_universal.curved.maps_tet import reference_nodes as tet_reference_nodes_lam
 
 TRI = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
 CHILDREN = np.array(

@@ -19,7 +19,7 @@ import ufl
 from dolfinx import fem
 from dolfinx import mesh as dmesh
 
-from dolfinx_universal._lagrange import lagrange_geometry
+from dolfinx_universal.core.lagrange import lagrange_geometry
 
 DEGREES = {"triangle": (1, 2, 3, 4, 5, 7), "tetrahedron": (1, 2, 3, 4, 5)}
 
@@ -94,7 +94,7 @@ def test_each_global_node_has_one_position(cell, mode):
 def test_compiled_nodes_are_numpy_s(cell, monkeypatch):
     """The entity nodes and the dofmap from the C kernels and from the numpy code: bitwise
     the same (the same sums in the same order), owned and ghost, at every degree."""
-    from dolfinx_universal._compiled import relax_kernels
+    from dolfinx_universal.core.compiled import relax_kernels
 
     msh = distorted(cell)
 

@@ -16,7 +16,10 @@ from mesh_checks import check_mesh, reference_lattice
 from random_domains import KINDS, RATIO_RANGE, RandomDomain, random_domain
 
 import dolfinx_universal as du
-from dolfinx_universal.background import create_background_mesh, equilateral_triangulation
+from dolfinx_universal.backgrounds.lattice_tri import (
+    create_background_mesh,
+    equilateral_triangulation,
+)
 
 comm = MPI.COMM_WORLD
 CENTRE = np.array([0.0123, -0.0234])
@@ -326,7 +329,7 @@ def test_gamma_h_loops_match_a_graph_search():
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    from dolfinx_universal.checks import _loops
+    from dolfinx_universal.conforming.checks import _loops
 
     rng = np.random.default_rng(0)
     for trial in range(60):

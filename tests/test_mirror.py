@@ -19,10 +19,10 @@ from scipy.spatial import cKDTree
 from test_background import canonical_cells
 
 import dolfinx_universal as du
-from dolfinx_universal import graded as gr
-from dolfinx_universal._geometry import interior_angles, signed_areas
-from dolfinx_universal.conform import _mirror_frame
-from dolfinx_universal.relax import RelaxFrame
+from dolfinx_universal.backgrounds import graded_tri as gr
+from dolfinx_universal.cells.tri import interior_angles, signed_areas
+from dolfinx_universal.conforming.relax import RelaxFrame
+from dolfinx_universal.conforming.universal import _mirror_frame
 
 comm = MPI.COMM_WORLD
 LENGTH, HEIGHT = 2.2, 0.41

@@ -16,8 +16,8 @@ from dolfinx.fem.petsc import create_matrix, create_vector
 from jit_counter import count_jit_compilations
 
 import dolfinx_universal as du
-from dolfinx_universal.moving import MovingDomain, StepReport
-from dolfinx_universal.moving_problem import (
+from dolfinx_universal.moving.domain import MovingDomain, StepReport
+from dolfinx_universal.moving.problems import (
     ActiveForm,
     MovingLinearProblem,
     MovingStokes,
@@ -186,7 +186,7 @@ def test_ghost_nodes_on_gamma_under_mpi():
 def test_graded_background_with_level_changes_near_gamma():
     """A propeller sweeping through quadtree level changes (finer at the tips): the smoothed
     local size keeps every step valid (the raw, jumping size folded triangles there)."""
-    from dolfinx_universal.graded import graded_mesh
+    from dolfinx_universal.backgrounds.graded_tri import graded_mesh
 
     def r(t):
         return 0.12 + 0.38 * np.exp(-(np.sin(1.5 * t) ** 2) / 0.3)
@@ -470,7 +470,7 @@ def test_preconditioned_stokes_equals_the_direct_solve():
     separates them from a wrong set-up (a direct solver factorising P, or fields in the
     wrong numbering, give O(1) errors or no convergence; a KSP that does not converge
     raises). Maxima over the ranks, so that all of them pass or fail together."""
-    from dolfinx_universal.moving_problem import DIRECT, ITERATIVE
+    from dolfinx_universal.moving.problems import DIRECT, ITERATIVE
 
     tight = ITERATIVE | {"ksp_rtol": 1e-13}
 

@@ -125,7 +125,7 @@ def test_from_motion_redistributes_the_same_mesh():
     """On several ranks ``from_motion`` builds its A15 background in slabs and redistributes
     it by the graph partitioner: the same background (cell count) and the same conformed
     meshes as on one rank (active cells, extreme angles, proven Jacobian ratio)."""
-    from dolfinx_universal.moving import _balanced
+    from dolfinx_universal.moving.domain import _balanced
 
     positions = [du.Torus(C + [0.1 * k, 0.0, 0.0], 0.5, 0.25) for k in range(2)]
     mds = [
@@ -185,7 +185,7 @@ def test_moving_stokes_concentric_spheres():
     immersed spherical container of radius b = 1 (no slip): the drag of the translating
     sphere and the torque of the rotating one against their closed forms (Happel & Brenner,
     Low Reynolds number hydrodynamics, 4-22 and 4-24), by the weak residual."""
-    from dolfinx_universal.moving_problem import MovingStokes
+    from dolfinx_universal.moving.problems import MovingStokes
 
     a, b = 0.5, 1.0
     lam = a / b

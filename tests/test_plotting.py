@@ -14,7 +14,7 @@ from dolfinx import fem
 from dolfinx import mesh as dmesh
 
 import dolfinx_universal as du
-from dolfinx_universal.boundaries import Circle, Domain
+from dolfinx_universal.boundaries.curves import Circle, Domain
 from dolfinx_universal.plotting import (
     boundary_polyline,
     cell_outlines,
@@ -286,7 +286,7 @@ def test_plot_function_png(tmp_path):
 
 def test_plot_function_active_cells():
     bg = du.equilateral_mesh(comm, [[-1.5, -1.5], [1.5, 1.5]], 0.3)
-    from dolfinx_universal.moving import MovingDomain
+    from dolfinx_universal.moving.domain import MovingDomain
 
     md = MovingDomain(bg, degree=2)
     md.update(Circle([0.1, 0.0], 0.8))

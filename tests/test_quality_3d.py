@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 
 import dolfinx_universal as du
-from dolfinx_universal.background_tet import a15_mesh
-from dolfinx_universal.quality import background_positions, cell_quality
-from dolfinx_universal.surfaces import Sphere
+from dolfinx_universal.backgrounds.lattice_tet import a15_mesh
+from dolfinx_universal.boundaries.surfaces import Sphere
+from dolfinx_universal.conforming.quality import background_positions, cell_quality
 
 comm = MPI.COMM_WORLD
 

@@ -12,9 +12,8 @@ from dolfinx import fem
 from random_domains import random_domain
 
 import dolfinx_universal as du
-from dolfinx_universal._geometry import interior_angles
-from dolfinx_universal.curved import _cell_nodes
-from dolfinx_universal.relax import (
+from dolfinx_universal.cells.tri import interior_angles
+from dolfinx_universal.conforming.relax import (
     ACTIVE_BELOW,
     ACTIVE_RATIO,
     _star_quality,
@@ -25,6 +24,7 @@ from dolfinx_universal.relax import (
     shape_quality,
     vertex_colours,
 )
+from dolfinx_universal.curved.maps import _cell_nodes
 
 CENTRE = (0.0137, -0.0071)
 BOX = [[-1.3, -1.3], [1.3, 1.3]]
@@ -408,7 +408,7 @@ def test_sub_reductions_match_vertex_reduce():
     of ``vertex_reduce`` of the whole array, also when called again (the kept vectors return
     to neutral), on a subset of the vertices of an equilateral background split over the
     ranks."""
-    from dolfinx_universal.validation import vertex_reduce
+    from dolfinx_universal.core.collective import vertex_reduce
 
     comm = MPI.COMM_WORLD
     imv = du.equilateral_mesh(comm, BOX, 0.05).topology.index_map(0)
@@ -435,13 +435,13 @@ def test_sub_reductions_match_vertex_reduce():
 
 
 def test_compiled_kernels_match_numpy(monkeypatch):
-    """The relaxation's C kernels (``dolfinx_universal._compiled``: the ratings, the colour
+    """The relaxation's C kernels (``dolfinx_universal.core.compiled``: the ratings, the colour
     passes with their decisions, the candidates) evaluate the numpy code's floating-point
     operations in its order, so the relaxed meshes are bitwise the same (vertices and the
     background positions of the slid ones): on a circle (edges of Gamma_h capped), a spline, the
     propeller (slides by the ray from its pole) in one process, and three steps of a moving
     propeller on its graded background (quick sizes)."""
-    from dolfinx_universal._compiled import relax_kernels
+    from dolfinx_universal.core.compiled import relax_kernels
 
     assert relax_kernels() is not None  # DOLFINx's C compiler (FFCx's) builds them
     demo = _propeller_demo()
@@ -483,7 +483,7 @@ def test_compiled_ratings_are_numpy_bitwise():
     decisions): candidate minima over vertex segments, re-rated star minima and the
     background minima, on a randomly perturbed mesh with inverted and degenerate triangles
     and capped edges between vertices on Gamma."""
-    from dolfinx_universal.relax import _Stars
+    from dolfinx_universal.conforming.relax import _Stars
 
     msh = du.equilateral_mesh(MPI.COMM_SELF, [[0, 0], [1, 1]], 0.1)
     cells, _, x = _vertex_arrays(msh)

@@ -11,7 +11,7 @@ from conftest import needs_ranks
 from scipy.spatial import cKDTree
 
 import dolfinx_universal as du
-from dolfinx_universal.relax import FRAME_GRID, RelaxFrame
+from dolfinx_universal.conforming.relax import FRAME_GRID, RelaxFrame
 
 comm = MPI.COMM_WORLD
 THETA = 0.3

@@ -13,7 +13,7 @@ from dolfinx import mesh as dmesh
 from scipy.spatial import cKDTree
 
 import dolfinx_universal as du
-from dolfinx_universal.graded import EDGE_FACTOR
+from dolfinx_universal.backgrounds.graded_tri import EDGE_FACTOR
 
 comm = MPI.COMM_WORLD
 CYLINDER = du.Circle((0.2, 0.2), 0.05)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize_scalar
 
-from dolfinx_universal.boundaries import (
+from dolfinx_universal.boundaries.curves import (
     Circle,
     Domain,
     Ellipse,
@@ -18,7 +18,7 @@ from dolfinx_universal.boundaries import (
     PolarCurve,
     RigidMotion,
 )
-from dolfinx_universal.sizing import (
+from dolfinx_universal.sizing.fields import (
     FEATURE_DIVISOR,
     CurveSamples,
     SizeField,
@@ -577,7 +577,7 @@ def test_small_tree_queries_start_no_thread(monkeypatch):
 
     from scipy.spatial import cKDTree
 
-    from dolfinx_universal import _geometry
+    from dolfinx_universal.core import arrays as _geometry
 
     started = []
     start = threading.Thread.start

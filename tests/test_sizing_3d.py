@@ -6,8 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dolfinx_universal.boundaries import Domain, RigidMotion
-from dolfinx_universal.sizing_3d import (
+from dolfinx_universal.boundaries.curves import Domain, RigidMotion
+from dolfinx_universal.boundaries.surfaces import Ellipsoid, ImplicitSurface, Sphere, Torus
+from dolfinx_universal.sizing.surfaces import (
     SurfaceFeature,
     _searched,
     sample_nearest,
@@ -16,7 +17,6 @@ from dolfinx_universal.sizing_3d import (
     surface_nearest,
     surface_samples,
 )
-from dolfinx_universal.surfaces import Ellipsoid, ImplicitSurface, Sphere, Torus
 
 BOTH = ["surface", "samples"]
 

@@ -1,4 +1,4 @@
-"""Surfaces in 3D (dolfinx_universal.surfaces) against dense references.
+"""Surfaces in 3D (dolfinx_universal.boundaries.surfaces) against dense references.
 
 References: brute force over a dense parametrisation of each surface, refined by
 Nelder-Mead on a few points; closed forms (the torus) for the implicit surfaces.

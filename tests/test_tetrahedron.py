@@ -8,7 +8,7 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from dolfinx_universal._tetrahedron import (
+from dolfinx_universal.cells.tet import (
     DIHEDRAL_BIN_EDGES,
     EDGES,
     FACETS,

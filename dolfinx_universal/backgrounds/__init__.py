@@ -1,0 +1,1 @@
+"""Background meshes: uniform lattices and graded trees of acute cells."""

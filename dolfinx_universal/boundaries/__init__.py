@@ -1,0 +1,1 @@
+"""Immersed boundaries: curves (2D) and surfaces (3D), their motions and domains."""

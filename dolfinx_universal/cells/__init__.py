@@ -1,0 +1,1 @@
+"""What differs by cell type: triangle and tetrahedron geometry, picked through one kit."""

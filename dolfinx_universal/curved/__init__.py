@@ -1,0 +1,1 @@
+"""Curved cells: the maps G_h, I_h and their variants, with proven Jacobian bounds."""

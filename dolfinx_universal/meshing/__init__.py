@@ -1,0 +1,1 @@
+"""Mesh a domain from its boundary alone: size, conform, curve, certify, refine and retry."""
