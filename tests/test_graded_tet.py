@@ -281,7 +281,8 @@ def test_auto_background():
     """``tet_background="auto"``: the graded octree where it has fewer than half the
     tetrahedra of the A15 background (a small body in a large box), else A15 (a torus
     whose band fills its box)."""
-    from dolfinx_universal.meshing.domain import _GradedTetPlan, _tet_plan, _UniformPlan
+    from dolfinx_universal.meshing.domain import UniformPlan as _UniformPlan
+    from dolfinx_universal.meshing.domain import _GradedTetPlan, _tet_plan
 
     plan = _tet_plan(comm, EXTERIOR, 0.8, 1, EXTERIOR_BOX, 3.0, None, "auto", 5e6)
     assert isinstance(plan, _GradedTetPlan) and plan.top == pytest.approx(8 * plan.base)
@@ -302,7 +303,8 @@ def test_auto_falls_back_to_a15():
     size where the refined octree would exceed ``max_cells`` (there: both components'
     bands halved, 6.8e6 tetrahedra estimated, the A15 one 2.4e6; mesh_domain raised) or
     have more tetrahedra; else the refined octree. Once only; never for ``"graded"``."""
-    from dolfinx_universal.meshing.domain import _GradedTetPlan, _refined, _tet_plan, _UniformPlan
+    from dolfinx_universal.meshing.domain import UniformPlan as _UniformPlan
+    from dolfinx_universal.meshing.domain import _GradedTetPlan, _refined, _tet_plan
 
     place = np.array([C + [0.3, 0.0, 0.0]])  # on the sphere
     plan = _tet_plan(comm, EXTERIOR, 0.8, 1, EXTERIOR_BOX, 3.0, None, "auto", 5e6)

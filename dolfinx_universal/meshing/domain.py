@@ -26,9 +26,9 @@ from dolfinx_universal.core.collective import MeshingError, collective_call, whe
 from dolfinx_universal.curved.bounds import check_degree
 from dolfinx_universal.curved.maps import MAPS, CurvedMesh, curved_mesh
 from dolfinx_universal.sizing.fields import (
+    MinSize,
     SizeField,
     SizeFunction,
-    _MinSize,
     feature_size,
     target_sizes,
 )
@@ -37,6 +37,7 @@ __all__ = [
     "DEFAULT_MAP",
     "Certificate",
     "MeshedDomain",
+    "UniformPlan",
     "check_components",
     "default_box",
     "mesh_domain",
@@ -809,7 +810,7 @@ class _GradedPlan(_Plan):
         return cls(box_arr, field_, feature, rho, h)
 
     def _size(self) -> SizeFunction:
-        return self.field if self.user is None else _MinSize(self.field, self.user)
+        return self.field if self.user is None else MinSize(self.field, self.user)
 
     def sizes(self) -> Float:
         return self._size()(self.points)
@@ -896,11 +897,11 @@ def _tet_plan(
             )
         return _GradedTetPlan.create(*args, max_cells, user=size_field)
     if kind == "a15":
-        return _UniformPlan.create(*args)
+        return UniformPlan.create(*args)
     graded = _GradedTetPlan.create(*args, max_cells)
     if kind == "graded":
         return graded
-    uniform = _UniformPlan.from_graded(graded, boundary, box, relaxation_factor)
+    uniform = UniformPlan.from_graded(graded, boundary, box, relaxation_factor)
     if graded.top <= graded.base * (1 + 1e-9):  # one level: the same size everywhere
         return uniform
     if max(graded.estimate(), uniform.estimate()) > max_cells:
@@ -937,7 +938,7 @@ def _refined(plan: _Plan, places: Float, comm: MPI.Comm, max_cells: float) -> tu
     return plan, ""
 
 
-class _UniformPlan(_Plan):
+class UniformPlan(_Plan):
     """Tetrahedra: a uniform A15 background (acute, every dihedral angle in [53, 79]
     degrees) of the smallest target size near Gamma, halved where a check fails."""
 
@@ -958,7 +959,7 @@ class _UniformPlan(_Plan):
         box: npt.ArrayLike | None,
         relaxation_factor: float,
         size_factor: float | None,
-    ) -> _UniformPlan:
+    ) -> UniformPlan:
         def sizing() -> tuple[Float, float, Float, Float, Float]:
             from dolfinx_universal.sizing.surfaces import surface_feature_size
 
@@ -980,7 +981,7 @@ class _UniformPlan(_Plan):
         boundary: Boundary,
         box: npt.ArrayLike | None,
         relaxation_factor: float,
-    ) -> _UniformPlan:
+    ) -> UniformPlan:
         """The uniform A15 plan of the smallest target size of ``plan``'s sizing."""
         size = plan.smallest
         box_arr = _checked_box(boundary, plan.points, size, box, relaxation_factor)
@@ -1056,7 +1057,7 @@ class _GradedTetPlan(_Plan):
         self._tree: tuple[object, object] | None = None  # octree and leaves, once built
         self.boundary: Boundary | None = None
         self.comm: MPI.Comm | None = None
-        self.alternative: _UniformPlan | None = None
+        self.alternative: UniformPlan | None = None
         """The A15 plan ``tet_background="auto"`` passed over (see :func:`_refined`)."""
         self.user: _UserSize | None = None
         """The user's ``size_field``: the octree's size is its minimum with :meth:`field`."""
@@ -1209,7 +1210,7 @@ class _GradedTetPlan(_Plan):
         from dolfinx_universal.backgrounds import graded_tet as graded_tet
 
         if self._tree is None:
-            size = self.field() if self.user is None else _MinSize(self.field(), self.user)
+            size = self.field() if self.user is None else MinSize(self.field(), self.user)
             t = graded_tet._octree(self.box, size, self.top, self.base, comm)
             self._tree = (t, graded_tet._classify(t))
         return self._tree

@@ -365,11 +365,11 @@ class MovingDomain:
         :func:`~dolfinx_universal.meshing.domain.mesh_domain` takes for one position) of the
         smallest target size over the positions, in the union of their boxes; halved
         everywhere where a position fails a refinable check."""
-        from dolfinx_universal.meshing.domain import MAX_CELLS, _UniformPlan
+        from dolfinx_universal.meshing.domain import MAX_CELLS, UniformPlan
 
         rf = float(options.get("relaxation_factor", 3.0))
-        plans = [_UniformPlan.create(comm, p, h, degree, box, rf, size_factor) for p in positions]
-        union = _UniformPlan(
+        plans = [UniformPlan.create(comm, p, h, degree, box, rf, size_factor) for p in positions]
+        union = UniformPlan(
             np.array([np.min([p.box[0] for p in plans], axis=0),
                       np.max([p.box[1] for p in plans], axis=0)]),
             min(p.size for p in plans),

@@ -32,6 +32,7 @@ from dolfinx_universal.core.collective import collective_call, raise_collective
 __all__ = [
     "FEATURE_DIVISOR",
     "CurveSamples",
+    "MinSize",
     "SizeField",
     "SizeFunction",
     "box_size",
@@ -861,7 +862,7 @@ def box_size(
     return _BoxSize(readonly(as_box(box)), _Ramp(size_in, size_out, 0.0, thickness))
 
 
-class _MinSize:
+class MinSize:
     """The pointwise minimum of size fields."""
 
     def __init__(self, *fields: SizeFunction) -> None:
