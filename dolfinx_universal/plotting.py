@@ -21,6 +21,7 @@ import numpy as np
 import numpy.typing as npt
 
 from dolfinx_universal.cells import tet as _tetrahedron
+from dolfinx_universal.conforming.universal import IMMERSED
 from dolfinx_universal.core.arrays import Float, lagrange_element
 
 if TYPE_CHECKING:
@@ -953,8 +954,6 @@ def _gather_kinds(
     and which of its edges lie on Gamma_h (``IMMERSED`` in ``tags``, else in ``cm``'s
     tags), ``(n, 4)`` int8; no data where ``msh`` does not have ``cm.mesh``'s local cells
     on every rank (collective)."""
-    from dolfinx_universal.conforming.universal import IMMERSED
-
     sub = cm.mesh
     local_ok = int(msh is sub or msh.topology.index_map(2).size_local == _owned_cells(sub))
     if sub.comm.allreduce(local_ok, op=MPI.MIN) != 1:

@@ -6,7 +6,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from mpi4py import MPI
 
@@ -17,6 +17,7 @@ import ufl
 from dolfinx import fem, la
 from dolfinx import mesh as dmesh
 
+from dolfinx_universal.backgrounds.graded_tri import EDGE_FACTOR, graded_mesh
 from dolfinx_universal.boundaries.curves import Boundary
 from dolfinx_universal.cells import tet as tet
 from dolfinx_universal.conforming.classify import interior_angles, positively_cut
@@ -35,9 +36,9 @@ from dolfinx_universal.core.compiled import pointer, relax_kernels
 from dolfinx_universal.curved import maps_tet as _curved_tet
 from dolfinx_universal.curved.bounds import check_degree
 from dolfinx_universal.curved.maps import MAPS, jacobian_ratio, map_nodes, reference_nodes
-
-if TYPE_CHECKING:
-    from dolfinx_universal.sizing.fields import SizeField
+from dolfinx_universal.io import redistribute
+from dolfinx_universal.meshing.domain import MAX_CELLS, UniformPlan, size_from_geometry
+from dolfinx_universal.sizing.fields import CurveSamples, SizeField, feature_size, target_sizes
 
 COVERAGE_TOLERANCE = 1.5
 """A step may ask for sizes this much finer than the background built for the motion."""
@@ -80,8 +81,6 @@ def _balanced(background: dmesh.Mesh) -> dmesh.Mesh:
     """
     if background.comm.size == 1:
         return background
-    from dolfinx_universal.io import redistribute
-
     return redistribute(background)[0]
 
 
@@ -263,9 +262,6 @@ class MovingDomain:
             When the positions cannot be meshed within ``max_rounds`` refinements, naming the
             position and the place.
         """
-        from dolfinx_universal.backgrounds.graded_tri import EDGE_FACTOR, graded_mesh
-        from dolfinx_universal.meshing.domain import size_from_geometry
-
         if callable(motion):
             if times is None:
                 raise ValueError("a callable motion needs the times at which to evaluate it")
@@ -365,8 +361,6 @@ class MovingDomain:
         :func:`~dolfinx_universal.meshing.domain.mesh_domain` takes for one position) of the
         smallest target size over the positions, in the union of their boxes; halved
         everywhere where a position fails a refinable check."""
-        from dolfinx_universal.meshing.domain import MAX_CELLS, UniformPlan
-
         rf = float(options.get("relaxation_factor", 3.0))
         plans = [UniformPlan.create(comm, p, h, degree, box, rf, size_factor) for p in positions]
         union = UniformPlan(
@@ -594,8 +588,6 @@ class MovingDomain:
 
     def _check_coverage(self, boundary: Boundary) -> None:
         """Raise if ``boundary`` needs a finer background than :meth:`from_motion` built."""
-        from dolfinx_universal.sizing.fields import CurveSamples, feature_size, target_sizes
-
         field, box, degree, factor = self._coverage  # type: ignore[misc]
 
         def needs() -> tuple[CurveSamples, npt.NDArray[np.float64]]:

@@ -42,6 +42,7 @@ from dolfinx import mesh as dmesh
 from dolfinx.fem.petsc import LinearProblem
 from ufl.algorithms import extract_coefficients
 
+from dolfinx_universal.boundaries.curves import Domain
 from dolfinx_universal.core.collective import collective_call
 
 if TYPE_CHECKING:
@@ -712,8 +713,6 @@ class MovingStokes:
         """Which velocity nodes (blocks of V) on Gamma_h belong to a body: all, unless the
         current domain has a container, whose nodes are those nearer to it than to every
         body."""
-        from dolfinx_universal.boundaries.curves import Domain
-
         boundary = self.md.boundary
         if not isinstance(boundary, Domain) or boundary.container is None:
             return np.ones(len(blocks), dtype=bool)
