@@ -13,7 +13,8 @@ from dolfinx_universal.conforming import relax_tet as _dvr
 
 
 class _SerialMap:
-    """The vertex index map of one rank: :class:`relax._Sub` reads only its communicator."""
+    """The vertex index map of one rank: :class:`relax_common.SubVertices` reads only its
+    communicator."""
 
     comm = MPI.COMM_SELF
 
@@ -286,15 +287,20 @@ def test_star_terms_match_star_faces():
 def test_vertex_colours_graph():
     """The colours of relax.vertex_colours (first fit in the same rounds), a proper
     colouring of the vertices of each cell; -1 corners are not coloured."""
-    from dolfinx_universal.conforming.relax import _Sub, coordinate_priority, vertex_colours
+    from dolfinx_universal.conforming.relax_common import (
+        SubVertices,
+        coordinate_priority,
+        vertex_colours,
+        vertex_colours_graph,
+    )
 
     x, _, cells, inner = _perturbed_a15(4)
     local = np.full(len(x), -1)
     local[inner] = np.arange(int(inner.sum()))
     csub = local[cells]
-    sub = _Sub(_SerialMap(), np.flatnonzero(inner))
+    sub = SubVertices(_SerialMap(), np.flatnonzero(inner))
     pr = coordinate_priority(x[inner])
-    colour = _dvr.vertex_colours_graph(sub, csub, pr)
+    colour = vertex_colours_graph(sub, csub, pr)
     assert np.array_equal(colour, vertex_colours(sub, csub, pr))
     assert colour.min() == 0
     for i in range(4):
@@ -308,7 +314,11 @@ def test_compiled_colours_and_entries_are_numpy_s():
     the star entries, their facets, orientations and ratings of the numpy set-up, bitwise:
     on perturbed A15 stars with turned (negatively oriented) cells, for two orders of the
     (distinct) priorities."""
-    from dolfinx_universal.conforming.relax import _Sub, coordinate_priority
+    from dolfinx_universal.conforming.relax_common import (
+        SubVertices,
+        coordinate_priority,
+        vertex_colours_graph,
+    )
     from dolfinx_universal.core.compiled import relax_kernels
 
     kernels = relax_kernels()
@@ -319,10 +329,10 @@ def test_compiled_colours_and_entries_are_numpy_s():
     local = np.full(len(x), -1, dtype=np.int64)
     local[inner] = np.arange(int(inner.sum()))
     csub = local[cells]
-    sub = _Sub(_SerialMap(), np.flatnonzero(inner))
+    sub = SubVertices(_SerialMap(), np.flatnonzero(inner))
     for pr in (coordinate_priority(x[inner]), -coordinate_priority(x[inner])):
         colour, entries = _dvr._compiled_colours(kernels, csub, pr)
-        ref = _dvr.vertex_colours_graph(sub, csub, pr)
+        ref = vertex_colours_graph(sub, csub, pr)
         np.testing.assert_array_equal(colour, ref)
         ncol = int(colour.max()) + 1
         verts, h = sub.vertices, np.ones(len(x))
@@ -340,7 +350,7 @@ def test_compiled_relaxation_is_numpy_s(monkeypatch, frame):
     compass, slides with capped edges of Gamma_h, early-out ratings) move the vertices
     exactly as the numpy visits do, bitwise: inside vertices of perturbed A15 patches and
     vertices sliding on a plane, with and without a turned frame."""
-    from dolfinx_universal.conforming.relax import RelaxFrame
+    from dolfinx_universal.conforming.relax_common import RelaxFrame
     from dolfinx_universal.core.compiled import relax_kernels
 
     assert relax_kernels() is not None

@@ -13,16 +13,18 @@ from random_domains import random_domain
 
 import dolfinx_universal as du
 from dolfinx_universal.cells.tri import interior_angles
-from dolfinx_universal.conforming.relax import (
+from dolfinx_universal.conforming.relax import relax_vertices
+from dolfinx_universal.conforming.relax_common import (
+    SubVertices,
+    coordinate_priority,
+    movable_vertices,
+    vertex_colours,
+)
+from dolfinx_universal.conforming.relax_tri import (
     ACTIVE_BELOW,
     ACTIVE_RATIO,
     _star_quality,
-    _Sub,
-    coordinate_priority,
-    movable_vertices,
-    relax_vertices,
     shape_quality,
-    vertex_colours,
 )
 from dolfinx_universal.curved.maps import _cell_nodes
 
@@ -129,7 +131,7 @@ def test_colours_are_independent_sets():
     cells = msh.topology.connectivity(2, 0).array.reshape(-1, 3)
     imv = msh.topology.index_map(0)
     keep = np.arange(imv.size_local) % 5 != 0  # some vertices left uncoloured
-    sub = _Sub(imv, np.flatnonzero(keep))
+    sub = SubVertices(imv, np.flatnonzero(keep))
     local = np.full(imv.size_local, -1)
     local[sub.vertices] = np.arange(len(sub.vertices))
     x = msh.geometry.x[:, :2]
@@ -403,17 +405,17 @@ def test_vertices_as_good_as_the_background_rest():
 @pytest.mark.mpi
 @needs_ranks(2)
 def test_sub_reductions_match_vertex_reduce():
-    """``_Sub.reduce`` (only the shared vertices' rows combined) and ``_Sub.reduce_rows``
-    (a subset of rows, different on each rank, the others neutral) give bitwise the values
-    of ``vertex_reduce`` of the whole array, also when called again (the kept vectors return
-    to neutral), on a subset of the vertices of an equilateral background split over the
-    ranks."""
+    """``SubVertices.reduce`` (only the shared vertices' rows combined) and
+    ``SubVertices.reduce_rows`` (a subset of rows, different on each rank, the others
+    neutral) give bitwise the values of ``vertex_reduce`` of the whole array, also when
+    called again (the kept vectors return to neutral), on a subset of the vertices of an
+    equilateral background split over the ranks."""
     from dolfinx_universal.core.collective import vertex_reduce
 
     comm = MPI.COMM_WORLD
     imv = du.equilateral_mesh(comm, BOX, 0.05).topology.index_map(0)
     g = imv.local_to_global(np.arange(imv.size_local + imv.num_ghosts, dtype=np.int32))
-    sub = _Sub(imv, np.flatnonzero(g % 7 != 3))
+    sub = SubVertices(imv, np.flatnonzero(g % 7 != 3))
     assert comm.allreduce(len(sub.shared), op=MPI.SUM) > 0  # vertices shared by the ranks
     key = g[sub.vertices].astype(np.float64)  # the same for a vertex on every rank
     calls = ((1, "min"), (5, "min"), (3, "sum"), (16, "max"), (40, "min"), (2, "min"), (3, "sum"))
@@ -483,7 +485,7 @@ def test_compiled_ratings_are_numpy_bitwise():
     decisions): candidate minima over vertex segments, re-rated star minima and the
     background minima, on a randomly perturbed mesh with inverted and degenerate triangles
     and capped edges between vertices on Gamma."""
-    from dolfinx_universal.conforming.relax import _Stars
+    from dolfinx_universal.conforming.relax_tri import _Stars
 
     msh = du.equilateral_mesh(MPI.COMM_SELF, [[0, 0], [1, 1]], 0.1)
     cells, _, x = _vertex_arrays(msh)

@@ -1,4 +1,4 @@
-"""Directional vertex relaxation of tetrahedra: the 3D branch of :func:`relax.relax_vertices`.
+"""Directional vertex relaxation of tetrahedra: a line search along an ascent direction.
 
 The same max-min problem as in 2D (each movable vertex raises the worst quality of the
 tetrahedra around it, the vertices on Gamma slide along Gamma), solved along one direction
@@ -19,11 +19,12 @@ its gradient; at a kink between two it is their bisector, which raises both. A v
 Gamma uses the direction's component in the tangent plane, and its candidates are
 projected onto Gamma and rated exactly.
 
-Each visit takes the first step length within :data:`relax.TIE` of the best and accepts
-it only if it raises the vertex's worst quality by more than ``TIE``, so the global
-minimum never falls, as in 2D. A vertex is visited again only while it keeps gaining or
-after a neighbour moved: a vertex that could not gain along its direction, or whose star
-meets the target with a margin (:data:`ACTIVE_BELOW`), waits until its star changes.
+Each visit takes the first step length within
+:data:`~dolfinx_universal.conforming.relax_common.TIE` of the best and accepts it only if it
+raises the vertex's worst quality by more than ``TIE``, so the global minimum never falls,
+as in 2D. A vertex is visited again only while it keeps gaining or after a neighbour moved:
+a vertex that could not gain along its direction, or whose star meets the target with a
+margin (:data:`ACTIVE_BELOW`), waits until its star changes.
 
 The quality of every tetrahedron is kept (one value per cell, rated once at the start) and
 set by the move that changes it, from the winning candidate's ratings of the mover's star
@@ -55,14 +56,16 @@ from mpi4py import MPI
 import numpy as np
 
 from dolfinx_universal.cells import tet as tet
-from dolfinx_universal.conforming.relax import (
+from dolfinx_universal.conforming.relax_common import (
     GAMMA_EDGE_MAX,
     INITIAL_STEP,
+    MAX_COLOURS,
     MAX_STEP,
     TIE,
     Relaxation,
     RelaxFrame,
-    _Sub,
+    SubVertices,
+    vertex_colours_graph,
     vertex_priority,
 )
 from dolfinx_universal.core.arrays import Bool, Float, Int
@@ -71,6 +74,16 @@ from dolfinx_universal.core.compiled import pointer, relax_kernels
 
 if TYPE_CHECKING:
     from dolfinx.common import IndexMap
+
+__all__ = [
+    "ascent_gradients",
+    "cube_root",
+    "line_rating",
+    "rating",
+    "rating_quality",
+    "relax_tetrahedra",
+    "star_terms",
+]
 
 SWEEPS = 6
 """Sweeps over all colours (fewer when a sweep moves nothing). On the 1e6-tetrahedron A15
@@ -116,57 +129,6 @@ COMPASS_STEPS = np.array([1.0, 1.0 / 3.0])
 """Steps of those directions, in units of the vertex's step."""
 MIN_STEP = 2e-2
 """Smallest step, in units of ``h``."""
-_MAX_COLOURS = 62
-
-
-def vertex_colours_graph(sub: _Sub, cells: Int, priority: Float) -> Int:
-    """The colours of :func:`relax.vertex_colours`, on the vertex graph (collective).
-
-    The same Jones-Plassmann rounds with first fit, on the distinct pairs of vertices that
-    share a cell. Each vertex counts its uncoloured neighbours of higher priority (on each
-    rank, over the pairs it has; a vertex is free when no rank counts one), and a round
-    visits only the pairs of the vertices it colours: the counts and colour masks of their
-    uncoloured neighbours are updated there, so that all rounds together read each pair
-    about once.
-    """
-    m = len(sub.vertices)
-    colour = np.full(m, -1, dtype=np.int64)
-    k = cells.shape[1]
-    pairs = [(i, j) for i in range(k) for j in range(i + 1, k)]
-    src = np.concatenate([cells[:, i] for i, _ in pairs]).astype(np.int64)
-    dst = np.concatenate([cells[:, j] for _, j in pairs]).astype(np.int64)
-    keep = (src >= 0) & (dst >= 0)
-    src, dst = src[keep], dst[keep]
-    src, dst = np.minimum(src, dst), np.maximum(src, dst)
-    key = np.sort(src * m + dst)
-    key = key[np.diff(key, prepend=-1) != 0]  # distinct edges, then both directions
-    src, dst = key // m, key % m
-    key = np.sort(np.concatenate([key, dst * m + src]))  # sorted by their first vertex
-    src, dst = key // m, key % m
-    ptr = np.searchsorted(src, np.arange(m + 1))  # each vertex's pairs
-    # The uncoloured neighbours of higher priority that each vertex waits for.
-    waits = np.bincount(src[priority[dst] > priority[src]], minlength=m).astype(np.float64)
-    used = np.zeros(m, dtype=np.int64)  # bit c: a neighbour has colour c
-    while sub.comm.allreduce(bool((colour[: sub.size_local] < 0).any()), op=MPI.LOR):
-        new = np.flatnonzero((colour < 0) & (sub.reduce(waits, "max") <= 0.0))
-        un = used[new]
-        free = ~un & (un + 1)  # the lowest colour not used
-        if len(new) and (free.min() <= 0 or free.max() >= 2**_MAX_COLOURS):
-            raise RuntimeError(f"vertex colouring: more than {_MAX_COLOURS} colours needed")
-        colour[new] = np.round(np.log2(free.astype(np.float64))).astype(np.int64)
-        # The pairs of the new vertices with their uncoloured neighbours, all of lower
-        # priority: one fewer to wait for, and the new colour in their masks.
-        cnt = ptr[new + 1] - ptr[new]
-        at = np.repeat(ptr[new] - (np.cumsum(cnt) - cnt), cnt) + np.arange(cnt.sum())
-        nb, c = dst[at], np.repeat(colour[new], cnt)
-        open_ = colour[nb] < 0
-        nb, c = nb[open_], c[open_]
-        waits -= np.bincount(nb, minlength=m)
-        np.bitwise_or.at(used, nb, np.left_shift(1, c))
-        if sub.map is not None:
-            nbits = sub.comm.allreduce(int(colour.max(initial=-1)) + 1, op=MPI.MAX)
-            sub.combine_bits(used, 2 ** np.arange(nbits, dtype=np.int64))
-    return colour
 
 
 def line_rating(s: Float, L: Float, sig: Float, beta2: Float, t: Float) -> Float:
@@ -329,7 +291,7 @@ def _compiled_colours(kernels: Any, csub: Int, priority: Float) -> tuple[Int, tu
         pointer(ffi, ecorner, "int64_t"), pointer(ffi, cfirst, "int64_t"),
     )  # fmt: skip
     if ncol < 0:
-        raise RuntimeError(f"vertex colouring: more than {_MAX_COLOURS} colours needed")
+        raise RuntimeError(f"vertex colouring: more than {MAX_COLOURS} colours needed")
     return colour, (ecell, ecorner, cfirst[cfirst >= 0])
 
 
@@ -369,11 +331,12 @@ def relax_tetrahedra(
     sweeps: int | None = None,
     frame: RelaxFrame | None = None,
 ) -> Relaxation:
-    """:func:`relax.relax_vertices` for tetrahedra (collective; same arguments)."""
+    """:func:`~dolfinx_universal.conforming.relax.relax_vertices` for tetrahedra: the
+    directional relaxation (collective; same arguments, points ``(n, 3)``)."""
     y0, y, xp = y, y.copy(), xp.copy()
     if sweeps is None:
         sweeps = SWEEPS
-    sub = _Sub(imv, np.flatnonzero(movable))
+    sub = SubVertices(imv, np.flatnonzero(movable))
     verts = sub.vertices
     m = len(verts)
     local = np.full(len(y), -1, dtype=np.int64)
@@ -439,8 +402,9 @@ class _TetStars:
     segment of it. Degenerate tetrahedra (no orientation to keep) rate -1. The quality of
     each tetrahedron (:attr:`rcell`, its :func:`rating`) is computed once here (from one of
     its entries), then set by the move that changes it. Edges of Gamma_h (both ends on
-    Gamma) may not grow beyond :data:`relax.GAMMA_EDGE_MAX` ``h`` (or their length after
-    ``M_h``, if longer): one row per (vertex on Gamma, neighbour on Gamma), sorted by the
+    Gamma) may not grow beyond
+    :data:`~dolfinx_universal.conforming.relax_common.GAMMA_EDGE_MAX` ``h`` (or their length
+    after ``M_h``, if longer): one row per (vertex on Gamma, neighbour on Gamma), sorted by the
     vertex. On one rank with the C kernels (``kernels``), ``entries`` are the sorted entries
     of :func:`_compiled_colours`.
     """
@@ -578,7 +542,7 @@ class _Directional:
     def __init__(
         self,
         comm: MPI.Comm,
-        sub: _Sub,
+        sub: SubVertices,
         onto_gamma: Callable[[Float], tuple[Float, Float]],
         stars: _TetStars,
         normal: Float,
