@@ -5,8 +5,12 @@ into ``docs/_autogen/`` (git-ignored) by the local extensions in ``docs/_ext/``:
 
 * ``demo_pages``: every ``demos/*.py`` (jupytext light or percent style) as a MyST page,
   comment blocks as Markdown and code as code blocks; nothing is executed.
-* ``api_pages``: one autodoc page per public module of the package, and the table of the
-  top-level exports.
+* ``api_pages``: one autodoc page per subpackage of the package (every public module of
+  it, found by ``pkgutil.walk_packages``), and the table of the top-level exports.
+
+The theme is pydata-sphinx-theme; math is rendered by a MathJax copy bundled with
+``sphinx-mathjax-offline``, so the pages need no network. The figures under
+``docs/figures/`` are committed and made by ``docs/make_figures.py``.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ extensions = [
     "sphinx.ext.napoleon",
     "sphinx.ext.mathjax",
     "sphinx.ext.viewcode",
+    "sphinx-mathjax-offline",  # MathJax served from _static/mathjax: no network needed
     "demo_pages",
     "api_pages",
 ]
@@ -62,36 +67,46 @@ autodoc_preserve_defaults = True
 # The package imports DOLFINx: it must be importable (the venv of .ci/venv has it).
 autodoc_mock_imports: list[str] = []
 
-html_theme = "alabaster"
+html_theme = "pydata_sphinx_theme"
 html_title = f"dolfinx_universal {release}"
+html_short_title = "dolfinx_universal"
 html_static_path: list[str] = []
 html_theme_options = {
-    "description": "Universal meshes for DOLFINx",
-    "fixed_sidebar": True,
+    "logo": {"text": "dolfinx_universal"},
+    "navbar_align": "left",
+    "show_toc_level": 2,
+    "navigation_with_keys": False,
+    "secondary_sidebar_items": ["page-toc"],
+    "footer_start": ["copyright"],
+    "footer_end": ["sphinx-version"],
+}
+# The section navigation only where a page has children (demos, API); elsewhere the text
+# takes the width.
+html_sidebars = {
+    "**": [],
+    "demos": ["sidebar-nav-bs"],
+    "api": ["sidebar-nav-bs"],
+    "_autogen/**": ["sidebar-nav-bs"],
 }
 
 # Demo pages: where the demos are, where their pages go.
 demo_source_dir = str(ROOT / "demos")
 demo_output_dir = "_autogen/demos"
-# API pages: the order of the module pages; modules not listed (or added later, like
-# ``io``) follow in alphabetical order, listed ones that do not exist are skipped.
+# API pages: one page per subpackage (its modules found by pkgutil.walk_packages), in the
+# order of the pipeline; subpackages and top-level modules not listed follow in alphabetical
+# order, listed ones that do not exist are skipped.
 api_output_dir = "_autogen/api"
 api_modules = [
     "boundaries",
-    "background",
-    "graded",
+    "backgrounds",
     "sizing",
-    "classify",
-    "conform",
-    "checks",
+    "conforming",
     "curved",
-    "jacobian",
-    "domain",
+    "meshing",
     "moving",
-    "constraints",
-    "quality",
-    "validation",
     "io",
-    "plotting",
     "cli",
+    "plotting",
+    "cells",
+    "core",
 ]
