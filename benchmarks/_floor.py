@@ -238,10 +238,25 @@ class ConformFloor(MotionFloor):
         return sub
 
 
+TABLES: list[dict] = []
+"""The tables :func:`print_table` printed, for the scripts' ``--json`` results."""
+
+
 def print_table(comm: MPI.Comm, title: str, rows: list[tuple[str, float, float]]) -> None:
-    """``| case | package | floor | ratio |`` on rank 0, times in milliseconds."""
+    """``| case | package | floor | ratio |`` on rank 0, times in milliseconds; the table is
+    also kept in :data:`TABLES` (times in seconds)."""
     if comm.rank:
         return
+    TABLES.append(
+        {
+            "title": title,
+            "ranks": comm.size,
+            "rows": [
+                {"case": name.strip(), "package_s": p, "floor_s": f, "ratio": p / f}
+                for name, p, f in rows
+            ],
+        }
+    )
     print(f"\n{title} (ranks: {comm.size}; median, max over ranks)")
     print(f"| {'case':<52} | {'package':>9} | {'floor':>9} | {'ratio':>6} |")
     print(f"|{'-' * 54}|{'-' * 11}|{'-' * 11}|{'-' * 8}|")

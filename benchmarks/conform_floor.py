@@ -17,8 +17,10 @@ import argparse
 
 from mpi4py import MPI
 
+import _results
 import numpy as np
 from _floor import (
+    TABLES,
     ConformFloor,
     equilateral,
     print_table,
@@ -50,6 +52,7 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="small backgrounds, 3 repeats")
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--cells", type=float, default=1e6)
+    parser.add_argument("--json", help="write the results as JSON to this file")
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
     repeats = 3 if args.quick else args.repeats
@@ -63,6 +66,8 @@ def main() -> None:
     pkg, flo, n = compare(comm, bg, demo.propeller, -step, repeats, local_size=True)
     rows.append((f"conform, propeller demo graded {n} cells", pkg, flo))
     print_table(comm, "UniversalMesh.conform against the floor (incl. create_submesh)", rows)
+    if args.json and comm.rank == 0:
+        _results.write(args.json, {"repeats": repeats, "tables": TABLES})
 
 
 if __name__ == "__main__":

@@ -46,8 +46,9 @@ import warnings
 
 from mpi4py import MPI
 
+import _results
 import numpy as np
-from _floor import print_table, timed_pairs
+from _floor import TABLES, print_table, timed_pairs
 from dolfinx import mesh as dmesh
 
 import dolfinx_universal as du
@@ -230,6 +231,7 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="8e4 tetrahedra, 3 repeats")
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--cells", type=float, default=1e6)
+    parser.add_argument("--json", help="write the results as JSON to this file")
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
     repeats = 3 if args.quick else args.repeats
@@ -255,6 +257,9 @@ def main() -> None:
             + ", ".join(f"{name}: {100 * s:.0f} %" for name, s in shares)
         )
         print("floor check (relax=False, step 0): " + "; ".join(notes))
+        if args.json:
+            results = {"repeats": repeats, "tables": TABLES, "floor_check": notes}
+            _results.write(args.json, {**results, "relax_share": dict(shares)})
 
 
 if __name__ == "__main__":

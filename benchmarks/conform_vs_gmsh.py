@@ -56,7 +56,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import statistics
@@ -68,6 +67,7 @@ import dolfinx_universal  # noqa: F401  (initialises the DOLFINx wheel before do
 
 from mpi4py import MPI
 
+import _results
 import gmsh
 from _tables import columns, header
 from dolfinx.io import gmsh as dgmsh
@@ -318,8 +318,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     say("\n" + table(rows, comm.size))
     say(f"load average {load()}")
     if args.out and root:
-        with open(args.out, "w") as f:
-            json.dump({"ranks": comm.size, "gmsh_options": threads, "rows": rows}, f, indent=2)
+        results = {"ranks": comm.size, "gmsh_options": threads, "rows": rows}
+        _results.write(args.out, results, None if argv is None else [__file__, *argv])
         say(f"wrote {args.out}")
     return rows
 

@@ -44,7 +44,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import statistics
 import warnings
@@ -55,6 +54,7 @@ import dolfinx_universal as du  # initialises the DOLFINx wheel before dolfinx
 
 from mpi4py import MPI
 
+import _results
 import gmsh
 import numpy as np
 from _tables import columns, header
@@ -288,8 +288,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
     say("\n" + table(rows, comm.size))
     say(f"load average {load()}")
     if args.out and root:
-        with open(args.out, "w") as f:
-            json.dump({"ranks": comm.size, "gmsh_options": options, "rows": rows}, f, indent=2)
+        results = {"ranks": comm.size, "gmsh_options": options, "rows": rows}
+        _results.write(args.out, results, None if argv is None else [__file__, *argv])
         say(f"wrote {args.out}")
     return rows
 

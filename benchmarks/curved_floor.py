@@ -17,8 +17,9 @@ import argparse
 
 from mpi4py import MPI
 
+import _results
 import basix
-from _floor import equilateral, print_table, propeller_demo, three_blades, timed_pairs
+from _floor import TABLES, equilateral, print_table, propeller_demo, three_blades, timed_pairs
 from dolfinx import fem
 from dolfinx import mesh as dmesh
 
@@ -42,6 +43,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="small backgrounds, 3 repeats")
     parser.add_argument("--repeats", type=int, default=9)
+    parser.add_argument("--json", help="write the results as JSON to this file")
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
     repeats = 3 if args.quick else args.repeats
@@ -62,6 +64,8 @@ def main() -> None:
             pkg, flo, n = compare(comm, bg, curve, q, repeats, **options)
             rows.append((f"curved_mesh q={q}, {name} {n} cells", pkg, flo))
     print_table(comm, "curved_mesh against interpolate_geometry", rows)
+    if args.json and comm.rank == 0:
+        _results.write(args.json, {"repeats": repeats, "tables": TABLES})
 
 
 if __name__ == "__main__":

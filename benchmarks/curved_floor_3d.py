@@ -40,9 +40,10 @@ import argparse
 
 from mpi4py import MPI
 
+import _results
 import basix
 import numpy as np
-from _floor import print_table, timed_pairs
+from _floor import TABLES, print_table, timed_pairs
 from conform_floor_3d import QUICK_CELLS, ConformFloor3D, background_box, floor_of, surfaces
 from dolfinx import fem
 from dolfinx import mesh as dmesh
@@ -142,6 +143,7 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="8e4 tetrahedra, 3 repeats")
     parser.add_argument("--repeats", type=int, default=7)
     parser.add_argument("--cells", type=float, default=1e6)
+    parser.add_argument("--json", help="write the results as JSON to this file")
     parser.add_argument(
         "--apart",
         action="store_true",
@@ -165,6 +167,9 @@ def main() -> None:
             "relaxation share of the relaxed update (median): "
             + ", ".join(f"{name}: {100 * s:.0f} %" for name, s in shares)
         )
+        if args.json:
+            results = {"repeats": repeats, "tables": TABLES, "relax_share": dict(shares)}
+            _results.write(args.json, results)
 
 
 if __name__ == "__main__":

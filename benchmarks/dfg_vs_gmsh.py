@@ -44,7 +44,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import time
@@ -56,6 +55,7 @@ import dolfinx_universal as du  # initialises the DOLFINx wheel before dolfinx
 
 from mpi4py import MPI
 
+import _results
 import gmsh
 import numpy as np
 from _floor import load_demo
@@ -570,7 +570,7 @@ def main() -> None:
             print(f"\nthe cylinder's first layer of cells at level {args.layers}:")
             print(layers_table(rows))
             args.out.parent.mkdir(parents=True, exist_ok=True)
-            args.out.write_text(json.dumps({"layers": args.layers, "rows": rows}, indent=2) + "\n")
+            _results.write(args.out, {"layers": args.layers, "rows": rows})
         return
     if args.spread is not None:
         t0 = time.perf_counter()
@@ -582,7 +582,7 @@ def main() -> None:
             print(spread_summary(rows))
             print(f"total {time.perf_counter() - t0:.0f} s, load average {os.getloadavg()[0]:.2f}")
             args.out.parent.mkdir(parents=True, exist_ok=True)
-            args.out.write_text(json.dumps({"spread": SPREAD, "rows": rows}, indent=2) + "\n")
+            _results.write(args.out, {"spread": SPREAD, "rows": rows})
         return
     levels = [0] if args.quick else args.levels
     if comm.rank == 0:
@@ -606,7 +606,7 @@ def main() -> None:
             "match": MATCH,
             "rows": rows,
         }
-        args.out.write_text(json.dumps(summary, indent=2) + "\n")
+        _results.write(args.out, summary)
 
 
 if __name__ == "__main__":

@@ -67,6 +67,8 @@ import numpy as np
 import dolfinx_universal as du
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import _results  # noqa: E402  (the results' common header)
 from mesh_checks import check_domain_mesh  # noqa: E402
 from random_domains import KINDS, random_domain  # noqa: E402
 
@@ -772,12 +774,19 @@ def main_3d(args: argparse.Namespace) -> dict:
             print_table_3d(summary)
             if args.out is not None:
                 _write(args.out, summary, records)
+            if args.json is not None:
+                _results.write(args.json, summary, _argv(args))
     return summary
 
 
 def _write(out: Path, summary: dict, records: list[dict]) -> None:
     out.mkdir(parents=True, exist_ok=True)
     (out / "summary.json").write_text(json.dumps({**summary, "records": records}, indent=1))
+
+
+def _argv(args: argparse.Namespace) -> list[str] | None:
+    """The command line of :func:`main`'s call (``sys.argv`` when run as a script)."""
+    return None if args.argv is None else [__file__, *args.argv]
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -794,6 +803,9 @@ def main(argv: list[str] | None = None) -> dict:
     p.add_argument("--quick", action="store_true", help="50 domains (3D: 20)")
     p.add_argument("--kinds", default=None, help="kinds to run (comma-separated; others skipped)")
     p.add_argument("--out", type=Path, default=None, help="directory for summary.json")
+    p.add_argument(
+        "--json", type=Path, default=None, help="write the summary (no records) to this file"
+    )
     p.add_argument(
         "--max-cells",
         type=float,
@@ -839,6 +851,7 @@ def main(argv: list[str] | None = None) -> dict:
         help="on several ranks, also mesh each domain on one rank and compare the nodes",
     )
     args = p.parse_args(argv)
+    args.argv = argv
     if args.against_serial and args.moving:
         p.error(
             "--against-serial compares static meshes (the moving mode compares each "
@@ -876,6 +889,8 @@ def main(argv: list[str] | None = None) -> dict:
         summary = summarise(records, time.perf_counter() - t0)
         if comm.rank == 0:
             print_table(summary)
+            if args.json is not None:
+                _results.write(args.json, summary, _argv(args))
             if args.out is not None:
                 args.out.mkdir(parents=True, exist_ok=True)
                 summary["records"] = records

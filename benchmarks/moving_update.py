@@ -25,6 +25,7 @@ import time
 
 from mpi4py import MPI
 
+import _results
 import basix.ufl
 import numpy as np
 import ufl
@@ -74,6 +75,7 @@ def main() -> None:
     parser.add_argument(
         "--quick", action="store_true", help="one small background (1e4 cells) and 2 steps"
     )
+    parser.add_argument("--json", help="write the rows as JSON to this file")
     args = parser.parse_args()
     if args.quick:
         args.sizes, args.steps = [1e4], 2
@@ -150,6 +152,8 @@ def main() -> None:
             "\nin-place / submesh per-step time: "
             + ", ".join(f"{r['cells']}: {r['update_s'] / r['submesh_s']:.2f}" for r in rows)
         )
+        if args.json:
+            _results.write(args.json, {"steps": args.steps, "rows": rows})
 
 
 if __name__ == "__main__":

@@ -21,8 +21,17 @@ import argparse
 
 from mpi4py import MPI
 
+import _results
 import numpy as np
-from _floor import UpdateFloor, equilateral, print_table, propeller_demo, three_blades, timed_pairs
+from _floor import (
+    TABLES,
+    UpdateFloor,
+    equilateral,
+    print_table,
+    propeller_demo,
+    three_blades,
+    timed_pairs,
+)
 
 import dolfinx_universal as du
 from dolfinx_universal.moving.domain import MovingDomain
@@ -61,6 +70,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="small backgrounds, 3 repeats")
     parser.add_argument("--repeats", type=int, default=9)
+    parser.add_argument("--json", help="write the results as JSON to this file")
     args = parser.parse_args()
     comm = MPI.COMM_WORLD
     repeats = 3 if args.quick else args.repeats
@@ -83,6 +93,11 @@ def main() -> None:
             "relaxation share of the relaxed update (median): "
             + ", ".join(f"{name}: {100 * s:.0f} %" for name, s in shares)
         )
+        if args.json:
+            relax_share = {name: s for name, s in shares}
+            _results.write(
+                args.json, {"repeats": repeats, "tables": TABLES, "relax_share": relax_share}
+            )
 
 
 if __name__ == "__main__":

@@ -18,7 +18,7 @@ def test_scaling_benchmark_quick(dim, tmp_path):
     for n in (1, 2):
         out = tmp_path / f"rows{n}.json"
         proc = run_mpi(n, [SCRIPT, "--quick", "--dim", str(dim), "--json", str(out)], timeout=600)
-        rows[n] = json.loads(out.read_text())[0]
+        rows[n] = json.loads(out.read_text())["rows"][0]
     lines = proc.stdout.strip().splitlines()
     assert any(line.startswith("ranks: 2") for line in lines), proc.stdout
     head = next(i for i, line in enumerate(lines) if line.split()[:2] == ["cells", "max/rank"])
