@@ -482,7 +482,7 @@ def test_window_clearance_is_a_lower_bound(name):
     is attained where the nearest such sample is among the neighbours searched: against
     all pairs of samples. ``annulus`` has two loops; ``neck`` comes back within a few
     sample spacings of itself."""
-    from dolfinx_universal.boundaries.curves import _WINDOWS, _window_clearance
+    from dolfinx_universal.boundaries.curve_samples import WINDOWS, window_clearance
 
     if name == "neck":  # a dumbbell whose waist is 0.004 wide
         t = np.linspace(0.0, 2.0 * np.pi, 400, endpoint=False)
@@ -505,14 +505,14 @@ def test_window_clearance_is_a_lower_bound(name):
         pts, tree, nxt = samples[0], samples[1], samples[3]
     else:  # ParametricCurve: (parameters, points, tree, prev, next, spacing)
         pts, tree, nxt = samples[1], samples[2], samples[4]
-    clears = _window_clearance(tree, pts, nxt)
+    clears = window_clearance(tree, pts, nxt)
     n = len(pts)
     ends = np.flatnonzero(nxt != np.arange(1, n + 1))
     loop = np.searchsorted(ends, np.arange(n))
     size = np.bincount(loop)[loop]
     assert len(ends) == (2 if name == "annulus" else 1)
-    assert len(clears) == len(_WINDOWS)
-    for w, clear in zip(_WINDOWS, clears):
+    assert len(clears) == len(WINDOWS)
+    for w, clear in zip(WINDOWS, clears):
         exact = np.empty(n)
         for rows in np.array_split(np.arange(n), 16):  # all pairs, a block of rows at a time
             step = (np.arange(n)[None, :] - rows[:, None]) % size[rows, None]
@@ -603,7 +603,7 @@ def test_onto_gamma_polar(monkeypatch):
     (not the closest point) or, at the flanks, the Newton step onto the normal line; points
     far off take the closest point; a subclass that changes the geometry gets closest
     points."""
-    from dolfinx_universal.boundaries.curves import ONTO_REACH
+    from dolfinx_universal.boundaries.base import ONTO_REACH
 
     def r(t):
         return 0.12 + 0.38 * np.exp(-(np.sin(1.5 * t) ** 2) / 0.3)

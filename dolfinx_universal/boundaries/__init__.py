@@ -1,1 +1,2 @@
-"""Immersed boundaries: curves (2D) and surfaces (3D), their motions and domains."""
+"""Immersed boundaries: the interface (``base``), curves (2D), surfaces (3D), their rigid
+motions (``motions``) and domains of several components (``domains``)."""

@@ -1,7 +1,7 @@
 """Immersed surfaces Gamma of solids in 3D: signs, closest points, distances and normals.
 
 The 3D counterparts of :mod:`dolfinx_universal.boundaries.curves`, with the same interface
-(:class:`~dolfinx_universal.boundaries.curves.Boundary`): a :class:`Surface` is a closed smooth
+(:class:`~dolfinx_universal.boundaries.base.Boundary`): a :class:`Surface` is a closed smooth
 surface bounding an open solid Omega. Points are float arrays ``(n, 3)`` (``n`` may be 0);
 results are float64 arrays ``(n,)`` or ``(n, 3)``; non-finite points raise
 :class:`ValueError`. Sign convention: -1 in Omega, +1 outside or on Gamma; normals point
@@ -14,14 +14,13 @@ out of Omega.
 * :class:`ImplicitSurface`: ``{phi = 0}`` of a level-set function; closest points by a
   safeguarded tangential Newton method started from dense samples of Gamma.
 
-:class:`~dolfinx_universal.boundaries.curves.RigidMotion` and
-:class:`~dolfinx_universal.boundaries.curves.Domain` accept surfaces.
+:class:`~dolfinx_universal.boundaries.motions.RigidMotion` and
+:class:`~dolfinx_universal.boundaries.domains.Domain` accept surfaces.
 """
 
 from __future__ import annotations
 
 import abc
-from collections.abc import Callable
 from functools import cached_property
 
 import numpy as np
@@ -29,31 +28,25 @@ import numpy.typing as npt
 from scipy.spatial import cKDTree
 from scipy.special import elliprg
 
-from dolfinx_universal.boundaries.curves import (
-    _EPS,
-    ONTO_REACH,
-    Bool,
-    Boundary,
-    Float,
-    Int,
-    _best,
-    _bracketed_newton,
-    _call,
-    _distances,
-    _Grid,
-    _native,
-    _normd,
-    _onto_or_closest,
-    _rotation_matrix,
-    _split,
-    _tangent_basis,
-    _vector,
+from dolfinx_universal.boundaries.base import ONTO_REACH, Boundary, native, onto_or_closest
+from dolfinx_universal.boundaries.grid import SignGrid
+from dolfinx_universal.boundaries.numerics import (
+    EPS,
+    ArrayFn,
+    best_pairs,
+    bracketed_newton,
+    call,
+    distances,
+    normd,
+    plane_basis,
+    rotation_matrix,
+    split,
+    unit,
+    vector,
 )
-from dolfinx_universal.core.arrays import as_points, positive
+from dolfinx_universal.core.arrays import Bool, Float, Int, as_points, positive
 
 __all__ = ["Ellipsoid", "ImplicitSurface", "Sphere", "Surface", "Torus"]
-
-ArrayFn = Callable[[Float], Float]
 
 _GOLDEN = np.pi * (3.0 - np.sqrt(5.0))
 """Golden angle (radians) of the Fibonacci lattices."""
@@ -71,10 +64,6 @@ test cannot resolve."""
 def _points(x: npt.ArrayLike, name: str = "x") -> Float:
     """``x`` as a contiguous float64 array ``(n, 3)``, checked finite."""
     return as_points(x, name, dim=3)
-
-
-def _unit(v: Float) -> Float:
-    return v / _normd(v)[:, None]
 
 
 def _dot(u: Float, v: Float) -> Float:
@@ -125,7 +114,7 @@ def _stratified(points: Float, weights: Float, n: int) -> Float:
 class Surface(Boundary):
     """A closed smooth surface Gamma bounding an open solid Omega in 3D.
 
-    The interface of :class:`~dolfinx_universal.boundaries.curves.Boundary` with points ``(n, 3)``
+    The interface of :class:`~dolfinx_universal.boundaries.base.Boundary` with points ``(n, 3)``
     (``gdim = 3``). Subclasses implement :meth:`sign`, :meth:`closest_point`,
     :meth:`normal`, :meth:`bounding_box`, :meth:`sample`, :meth:`min_radius_of_curvature`,
     :meth:`area` and :meth:`_lower_bound`, and set :attr:`euler_characteristic`. The planar
@@ -157,9 +146,9 @@ class Surface(Boundary):
         """Orthonormal tangent bases ``(n, 2, 3)`` at ``pi(y)`` for points ``y (n, 3)``.
 
         Rows ``t1, t2`` with ``t1 x t2`` the outward normal (see
-        :func:`~dolfinx_universal.boundaries.curves._tangent_basis` for the choice of ``t1``).
+        :func:`~dolfinx_universal.boundaries.numerics.plane_basis` for the choice of ``t1``).
         """
-        return _tangent_basis(self.normal(y))
+        return plane_basis(self.normal(y))
 
     def near(self, x: npt.ArrayLike, distance: float | npt.ArrayLike) -> Bool:
         """Superset of the points within ``distance`` of Gamma.
@@ -177,7 +166,7 @@ class Surface(Boundary):
         bounds decide most points, the exact distance (up to a relative ``1e-12``) the rest.
         """
         x = _points(x)
-        d = _distances(distance, len(x))
+        d = distances(distance, len(x))
         lower, upper = self._bounds_within(x, float(d.max()) if len(d) else 0.0)
         mask = lower <= d
         test = np.flatnonzero(mask)
@@ -186,7 +175,7 @@ class Surface(Boundary):
             test = test[up > d[test]]
         if test.size:
             y = self.closest_point(x[test])
-            mask[test] = _normd(x[test] - y) <= d[test] * (1 + 1e-12)
+            mask[test] = normd(x[test] - y) <= d[test] * (1 + 1e-12)
         return mask
 
     @abc.abstractmethod
@@ -226,7 +215,7 @@ class Surface(Boundary):
         raise NotImplementedError("sample loops are planar")
 
     @property
-    def _grid(self) -> _Grid:
+    def _grid(self) -> SignGrid:
         raise NotImplementedError("the sign/distance grid is planar")
 
 
@@ -245,7 +234,7 @@ class Sphere(Surface):
     euler_characteristic = 2
 
     def __init__(self, center: npt.ArrayLike, radius: float) -> None:
-        self.center = _vector(center, "center", 3)
+        self.center = vector(center, "center", 3)
         self.radius = positive(radius, "radius")
 
     def sign(self, x: npt.ArrayLike) -> Float:
@@ -275,20 +264,20 @@ class Sphere(Surface):
         return np.column_stack(self._direction(y))
 
     def closest_normal(self, x: Float) -> tuple[Float, Float]:
-        if not _native(self, Sphere, "closest_point", "normal"):
+        if not native(self, Sphere, "closest_point", "normal"):
             return Boundary.closest_normal(self, x)
         u = self._direction(x)
         return self._on_sphere(u), np.column_stack(u)
 
     def near(self, x: npt.ArrayLike, distance: float | npt.ArrayLike) -> Bool:
         x = _points(x)
-        return self._lower_bound(x) <= _distances(distance, len(x))
+        return self._lower_bound(x) <= distances(distance, len(x))
 
     def _lower_bound(self, x: Float) -> Float:
-        return np.abs(_normd(x - self.center) - self.radius)
+        return np.abs(normd(x - self.center) - self.radius)
 
     def bounding_box(self) -> Float:
-        r = self.radius * (1 + 4 * _EPS)
+        r = self.radius * (1 + 4 * EPS)
         return np.array([self.center - r, self.center + r])
 
     def sample(self, n: int) -> Float:
@@ -334,7 +323,7 @@ class Ellipsoid(Surface):
     def __init__(
         self, center: npt.ArrayLike, semi_axes: npt.ArrayLike, rotation: object = None
     ) -> None:
-        self.center = _vector(center, "center", 3)
+        self.center = vector(center, "center", 3)
         e = np.asarray(semi_axes, dtype=np.float64).reshape(-1)
         if e.shape != (3,) or not (np.isfinite(e) & (e > 0)).all():
             raise ValueError(f"semi_axes must be three positive finite numbers, got {semi_axes!r}")
@@ -346,7 +335,7 @@ class Ellipsoid(Surface):
                 mat = np.zeros(0)
             if mat.shape == (3, 3) and np.isfinite(mat).all() and np.linalg.det(mat) < 0:
                 rotation = mat * np.array([-1.0, 1.0, 1.0])  # a reflection: the same ellipsoid
-        self.rotation = np.eye(3) if rotation is None else _rotation_matrix(rotation)
+        self.rotation = np.eye(3) if rotation is None else rotation_matrix(rotation)
         self._m = int(np.argmin(e))
         self._d = e**2 - e[self._m] ** 2
         self._S = self._d == 0  # the smallest semi-axes
@@ -380,7 +369,7 @@ class Ellipsoid(Surface):
         if reg.size:
             cr = c[reg]
             lo = np.maximum((cr - d).max(axis=1), 0.0)  # H(lo) >= 1
-            hi = _normd(cr)  # H(hi) <= 1
+            hi = normd(cr)  # H(hi) <= 1
             u = hi.copy()
             act = np.arange(len(reg))
             for _ in range(200):
@@ -400,15 +389,15 @@ class Ellipsoid(Surface):
                 un = np.where((un >= la) & (un <= ha), un, mid)  # converged: un = ua
                 un = np.where(H == 1, ua, un)
                 u[act] = un
-                act = act[(np.abs(un - ua) > 4 * _EPS * un) & (ha - la > 4 * _EPS * ha)]
+                act = act[(np.abs(un - ua) > 4 * EPS * un) & (ha - la > 4 * EPS * ha)]
             out[reg] = e * cr / (u[:, None] + d)
         return np.copysign(out, p)
 
     def _local_normal(self, xs: Float) -> Float:
-        return _unit(xs / self.semi_axes**2)
+        return unit(xs / self.semi_axes**2)
 
     def closest_normal(self, x: Float) -> tuple[Float, Float]:
-        if not _native(self, Ellipsoid, "closest_point", "normal"):
+        if not native(self, Ellipsoid, "closest_point", "normal"):
             return Boundary.closest_normal(self, x)
         xs = self._solve(self._local(x))
         return self._world(xs), self._local_normal(xs) @ self.rotation.T
@@ -422,7 +411,7 @@ class Ellipsoid(Surface):
     def _radius(self, x: Float) -> tuple[Float, Float]:
         """Ellipsoidal radius ``g = |p / e|`` ``(n,)`` and ``|p|`` ``(n,)``."""
         p = self._local(x)
-        return _normd(p / self.semi_axes), _normd(p)
+        return normd(p / self.semi_axes), normd(p)
 
     def _lower_bound(self, x: Float) -> Float:
         # A point of g E is at least |g - 1| e_min from E (E + B((g - 1) e_min) is inside
@@ -438,7 +427,7 @@ class Ellipsoid(Surface):
         return np.abs(g - 1) * self.semi_axes.max() * (1 + 1e-12)
 
     def bounding_box(self) -> Float:
-        ext = _normd(self.rotation * self.semi_axes) * (1 + 4 * _EPS)
+        ext = normd(self.rotation * self.semi_axes) * (1 + 4 * EPS)
         return np.array([self.center - ext, self.center + ext])
 
     def sample(self, n: int) -> Float:
@@ -450,7 +439,7 @@ class Ellipsoid(Surface):
         e = self.semi_axes
         m = int(min(64 * n, n * max(4.0, 2 * e.max() / e.min()))) + 16
         u = _fibonacci(m)
-        weights = _normd(u / e)  # area element of the map u -> e u, up to prod(e)
+        weights = normd(u / e)  # area element of the map u -> e u, up to prod(e)
         return self._world(_stratified(u * e, weights, n))
 
     def min_radius_of_curvature(self) -> float:
@@ -491,15 +480,15 @@ class Torus(Surface):
         minor: float,
         axis: npt.ArrayLike = (0.0, 0.0, 1.0),
     ) -> None:
-        self.center = _vector(center, "center", 3)
+        self.center = vector(center, "center", 3)
         self.major, self.minor = positive(major, "major"), positive(minor, "minor")
         if not self.minor < self.major:
             raise ValueError(f"a ring torus needs minor < major, got {minor} >= {major}")
-        k = _vector(axis, "axis", 3)
+        k = vector(axis, "axis", 3)
         if not (k @ k) > 0:
             raise ValueError("axis must be non-zero")
         self.axis = k / np.sqrt(k @ k)
-        self.frame = _tangent_basis(self.axis[None])[0]
+        self.frame = plane_basis(self.axis[None])[0]
         """Rows ``t1, t2`` ``(2, 3)`` spanning the plane of the core circle."""
 
     def _offsets(self, x: Float) -> tuple[list[Float], Float, list[Float], Float]:
@@ -518,7 +507,7 @@ class Torus(Surface):
         """Closest points of the core circle and the outward normals (coordinate columns)."""
         d, _, w, rho = self._offsets(x)
         # Radial unit vectors; on the axis (w is rounding, of any direction) t1.
-        pos = rho > 4 * _EPS * np.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2)
+        pos = rho > 4 * EPS * np.sqrt(d[0] ** 2 + d[1] ** 2 + d[2] ** 2)
         rho = np.where(pos, rho, 1.0)
         t1 = self.frame[0]
         u = [np.where(pos, w[i] / rho, t1[i]) for i in range(3)]
@@ -534,7 +523,7 @@ class Torus(Surface):
         return np.where((rho - self.major) ** 2 + z * z < self.minor**2, -1.0, 1.0)
 
     def closest_normal(self, x: Float) -> tuple[Float, Float]:
-        if not _native(self, Torus, "closest_point", "normal"):
+        if not native(self, Torus, "closest_point", "normal"):
             return Boundary.closest_normal(self, x)
         c, n = self._direction(_points(x))
         return self._on_torus(c, n), np.column_stack(n)
@@ -551,7 +540,7 @@ class Torus(Surface):
 
     def near(self, x: npt.ArrayLike, distance: float | npt.ArrayLike) -> Bool:
         x = _points(x)
-        return self._lower_bound(x) <= _distances(distance, len(x))
+        return self._lower_bound(x) <= distances(distance, len(x))
 
     def _lower_bound(self, x: Float) -> Float:
         _, z, _, rho = self._offsets(x)
@@ -559,7 +548,7 @@ class Torus(Surface):
 
     def bounding_box(self) -> Float:
         ext = self.major * np.sqrt(np.maximum(1 - self.axis**2, 0.0)) + self.minor
-        ext = ext * (1 + 4 * _EPS)
+        ext = ext * (1 + 4 * EPS)
         return np.array([self.center - ext, self.center + ext])
 
     def sample(self, n: int) -> Float:
@@ -571,7 +560,7 @@ class Torus(Surface):
         R, r = self.major, self.minor
         rings = int(min(n, max(3, round(np.sqrt(n * r / R)))))
         v = 2 * np.pi * (np.arange(rings) + 0.5) / rings
-        counts = np.asarray(_split(n, list(R + r * np.cos(v))), dtype=np.intp)
+        counts = np.asarray(split(n, list(R + r * np.cos(v))), dtype=np.intp)
         j = np.repeat(np.arange(rings), counts)
         k = np.arange(n) - np.repeat(np.cumsum(counts) - counts, counts)
         m = counts[j]
@@ -680,19 +669,19 @@ class ImplicitSurface(Surface):
             else positive(min_radius_of_curvature, "min_radius_of_curvature")
         )
         self.resolution = int(resolution)
-        self._scale = float(_normd(box[1] - box[0]))
+        self._scale = float(normd(box[1] - box[0]))
         self.fd_step = 6e-6 * self._scale
 
     # -- evaluations
     def _phi(self, y: Float) -> Float:
-        return _call(self._f, y, (len(y),), "phi") if len(y) else np.zeros(0)
+        return call(self._f, y, (len(y),), "phi") if len(y) else np.zeros(0)
 
     def _g(self, y: Float) -> Float:
-        return _call(self._gradf, y, (len(y), 3), "grad") if len(y) else np.zeros((0, 3))
+        return call(self._gradf, y, (len(y), 3), "grad") if len(y) else np.zeros((0, 3))
 
     def _H(self, y: Float) -> Float:
         if self._hessf is not None:
-            return _call(self._hessf, y, (len(y), 3, 3), "hess")
+            return call(self._hessf, y, (len(y), 3, 3), "hess")
         e = np.eye(3) * self.fd_step
         H = np.stack([self._g(y + e[j]) - self._g(y - e[j]) for j in range(3)], axis=2)
         return (H + H.transpose(0, 2, 1)) / (4 * self.fd_step)
@@ -707,7 +696,7 @@ class ImplicitSurface(Surface):
         ``reach`` times Newton's estimate of the offset (``-phi / |grad phi|``)."""
         m = len(z)
         f0, g0 = self._phi(z), self._g(z)
-        gn = _normd(g0)
+        gn = normd(g0)
         ok = np.isfinite(f0) & np.isfinite(gn) & (gn > 0)
         u = np.zeros_like(z)
         u[ok] = g0[ok] / gn[ok, None]
@@ -716,7 +705,7 @@ class ImplicitSurface(Surface):
         todo = np.flatnonzero(ok & (f0 != 0))
         if todo.size:
             s = -f0[todo] / gn[todo]  # Newton's estimate of the offset
-            s = np.where(s == 0, np.copysign(_EPS * self._scale, s), s)
+            s = np.where(s == 0, np.copysign(EPS * self._scale, s), s)
             found = np.zeros(todo.size, dtype=bool)
             near_end = np.zeros(todo.size)
             far_end = np.zeros(todo.size)
@@ -744,7 +733,7 @@ class ImplicitSurface(Surface):
                     return self._phi(p), _dot(self._g(p), us[i])
 
                 t0 = np.clip(-f0[sel] / gn[sel], lo[sel], hi[sel])
-                t[sel] = _bracketed_newton(fn, t0, lo[sel], hi[sel], 4 * _EPS * self._scale)
+                t[sel] = bracketed_newton(fn, t0, lo[sel], hi[sel], 4 * EPS * self._scale)
         y = z + t[:, None] * u
         return y, ok & np.isfinite(y).all(axis=1)
 
@@ -806,7 +795,7 @@ class ImplicitSurface(Surface):
             pts.append(p)
         y, ok = self._to_surface(np.concatenate(pts))
         y = y[ok]
-        g1 = np.abs(_unit(self._g(y))).sum(axis=1)
+        g1 = np.abs(unit(self._g(y))).sum(axis=1)
         return y, h * h / g1, h
 
     @cached_property
@@ -830,7 +819,7 @@ class ImplicitSurface(Surface):
         """Local closest points of ``x (m, 3)`` from starts ``y0 (m, 3)`` on Gamma, and the
         mask of those that converged and passed the checks (see the class docstring)."""
         y = y0.copy()
-        dist = _normd(y - x)
+        dist = normd(y - x)
         ok = np.zeros(len(x), dtype=bool)
         act = np.arange(len(x))
         delta = self._seeds[3]
@@ -840,8 +829,8 @@ class ImplicitSurface(Surface):
                 break
             xa, ya = x[act], y[act]
             g = self._g(ya)
-            gn = _normd(g)
-            T = _tangent_basis(g / gn[:, None])
+            gn = normd(g)
+            T = plane_basis(g / gn[:, None])
             r = ya - xa
             lam = -_dot(r, g) / gn**2
             Q = np.eye(2) + lam[:, None, None] * np.einsum("kai,kij,kbj->kab", T, self._H(ya), T)
@@ -869,7 +858,7 @@ class ImplicitSurface(Surface):
             with np.errstate(divide="ignore", invalid="ignore"):
                 beta *= np.minimum(1.0, delta / nb)[:, None]
             step = np.einsum("ka,kai->ki", beta, T)
-            size = _normd(step)
+            size = normd(step)
             # Small Newton steps where Q is positive definite are taken without the distance
             # test: their decrease of the distance, O(size^2 / distance), falls below the
             # rounding of the distance from size ~ 1e-8 sqrt(distance) on, where that test
@@ -883,9 +872,9 @@ class ImplicitSurface(Surface):
                 if not pend.size:
                     break
                 yt, okt = self._to_surface(ya[pend] + fac[pend, None] * step[pend])
-                dt = _normd(yt - xa[pend])
+                dt = normd(yt - xa[pend])
                 small = fac[pend] * size[pend] <= tol
-                good = okt & ((dt <= dist[act[pend]] * (1 + 8 * _EPS)) | small | newton[pend])
+                good = okt & ((dt <= dist[act[pend]] * (1 + 8 * EPS)) | small | newton[pend])
                 ynew[pend[good]] = yt[good]
                 dist[act[pend[good]]] = dt[good]
                 pend = pend[~good]
@@ -902,11 +891,11 @@ class ImplicitSurface(Surface):
         if not len(y):
             return np.zeros(0, dtype=bool)
         g = self._g(y)
-        gn = _normd(g)
+        gn = normd(g)
         r = x - y
-        tang = _normd(r - (_dot(r, g) / gn**2)[:, None] * g)
+        tang = normd(r - (_dot(r, g) / gn**2)[:, None] * g)
         on = np.abs(self._phi(y)) <= 1e-12 * self._scale * gn
-        return on & (tang <= 1e-9 * (self._scale + _normd(r)))
+        return on & (tang <= 1e-9 * (self._scale + normd(r)))
 
     def _starts(self, x: Float) -> tuple[Int, Int]:
         """Pairs ``(point, seed)`` of starts: the nearest seed of every point, and up to 3
@@ -917,7 +906,7 @@ class ImplicitSurface(Surface):
         pts, tree, nb, _, cover, _ = self._seeds
         k = min(16, len(pts))
         D, J = tree.query(x, k=k)
-        far = (D <= D[:, :1] + 1.5 * cover) & (_normd(pts[J] - pts[J[:, :1]]) > 2 * cover)
+        far = (D <= D[:, :1] + 1.5 * cover) & (normd(pts[J] - pts[J[:, :1]]) > 2 * cover)
         far[:, 0] = False
         rows = np.flatnonzero(far.any(axis=1))
         ps, ss = [np.arange(len(x))], [J[:, 0]]
@@ -940,7 +929,7 @@ class ImplicitSurface(Surface):
         pts = self._seeds[0]
         pi, si = self._starts(x)
         y, ok = self._descend(x[pi], pts[si])
-        best = _best(pi, np.where(ok, _normd(y - x[pi]), np.inf))
+        best = best_pairs(pi, np.where(ok, normd(y - x[pi]), np.inf))
         out, good = y[best], ok[best]
         bad = np.flatnonzero(~good)
         if bad.size:  # from the point's own projection along the gradient line
@@ -957,32 +946,32 @@ class ImplicitSurface(Surface):
         return out
 
     def closest_normal(self, x: Float) -> tuple[Float, Float]:
-        if not _native(self, ImplicitSurface, "closest_point", "normal"):
+        if not native(self, ImplicitSurface, "closest_point", "normal"):
             return Boundary.closest_normal(self, x)
         y = self.closest_point(x)
-        return y, _unit(self._g(y))
+        return y, unit(self._g(y))
 
     def onto_gamma(self, x: Float) -> tuple[Float, Float]:
         """Points of Gamma near points ``x (n, 3)`` close to it and the outward normals
         there: ``x`` moved along the line of ``grad phi`` through it (one bracketed Newton
         search, about a tenth of the cost of a closest point; for points a tangent step of
         0.05-0.35 h from Gamma the two differ by about 1e-6 h). Points whose zero on that
-        line is not within :data:`~dolfinx_universal.boundaries.curves.ONTO_REACH` times Newton's
+        line is not within :data:`~dolfinx_universal.boundaries.base.ONTO_REACH` times Newton's
         estimate of the offset, or is not on Gamma to the closest points' tolerance, get
         their closest points."""
-        if not _native(self, ImplicitSurface, "closest_point", "normal", "closest_normal"):
+        if not native(self, ImplicitSurface, "closest_point", "normal", "closest_normal"):
             return Boundary.onto_gamma(self, x)
         x = _points(x)
         y, ok = self._to_surface(x, reach=ONTO_REACH)
-        return _onto_or_closest(self, x, y, ok, self._phi(y), self._g(y), self._scale)
+        return onto_or_closest(self, x, y, ok, self._phi(y), self._g(y), self._scale)
 
     def normal(self, y: npt.ArrayLike) -> Float:
         y = _points(y)
         g = self._g(y)
-        off = np.abs(self._phi(y)) > 1e-12 * self._scale * _normd(g)
+        off = np.abs(self._phi(y)) > 1e-12 * self._scale * normd(g)
         if off.any():
             g[off] = self._g(self.closest_point(y[off]))
-        return _unit(g)
+        return unit(g)
 
     def _lower_bound(self, x: Float) -> Float:
         return self._lower_bound_within(x, np.inf)  # an unbounded query of the seeds
@@ -1024,8 +1013,8 @@ class ImplicitSurface(Surface):
     def _curvature_radius(self) -> float:
         y = self._seeds[0]
         g = self._g(y)
-        gn = _normd(g)
-        T = _tangent_basis(g / gn[:, None])
+        gn = normd(g)
+        T = plane_basis(g / gn[:, None])
         K = np.einsum("kai,kij,kbj->kab", T, self._H(y), T) / gn[:, None, None]
         kappa = np.abs(np.linalg.eigvalsh(K)).max()
         return float(1 / kappa) if kappa > 0 else np.inf
