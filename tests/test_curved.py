@@ -11,13 +11,8 @@ from dolfinx import fem
 from dolfinx.fem.petsc import LinearProblem
 
 import dolfinx_universal as du
-from dolfinx_universal.curved.maps import (
-    _cell_nodes,
-    jacobian_ratio,
-    map_nodes,
-    reference_nodes,
-    transfinite_map,
-)
+from dolfinx_universal.curved.maps import _cell_nodes, jacobian_ratio
+from dolfinx_universal.curved.maps_tri import map_nodes, reference_nodes, transfinite_map
 
 comm = MPI.COMM_WORLD
 CENTRE = np.array([0.0123, -0.0234])

@@ -9,17 +9,20 @@ from dolfinx_universal.core.arrays import lagrange_element
 from dolfinx_universal.curved import bounds_tet as _tet
 from dolfinx_universal.curved.bounds import (
     MAX_DEGREE,
-    _subdivision,
     _to_bernstein,
-    bernstein_basis,
     bernstein_coefficients,
-    bernstein_indices,
     check_degree,
     jacobian_bounds,
-    jacobian_determinant,
 )
-from dolfinx_universal.curved.maps import jacobian_ratio, reference_nodes
+from dolfinx_universal.curved.bounds_tri import (
+    bernstein_basis,
+    bernstein_indices,
+    jacobian_determinant,
+    subdivision,
+)
+from dolfinx_universal.curved.maps import jacobian_ratio
 from dolfinx_universal.curved.maps_tet import reference_nodes as tet_reference_nodes_lam
+from dolfinx_universal.curved.maps_tri import reference_nodes
 
 TRI = np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]])
 CHILDREN = np.array(
@@ -97,7 +100,7 @@ def test_subdivision_is_exact(order):
     rng = np.random.default_rng(order)
     nb = len(bernstein_indices(order))
     c = rng.standard_normal((3, nb))
-    split = _subdivision(order).reshape(nb, 4, 2, nb)
+    split = subdivision(order).reshape(nb, 4, 2, nb)
     ref = random_points(rng, 30)  # in the child's reference coordinates
     lam = np.column_stack([1.0 - ref.sum(axis=1), ref])
     for k, child in enumerate(CHILDREN):

@@ -1,29 +1,32 @@
 """Proven bounds of the Jacobian determinant of curved triangles and tetrahedra by Bernstein–Bézier
-subdivision (the tetrahedron pieces are in :mod:`._bernstein_tet`)."""
+subdivision; the per-cell-type pieces are in :mod:`.bounds_tri` and :mod:`.bounds_tet`."""
 
 from __future__ import annotations
 
 from collections.abc import Iterator
 from functools import lru_cache
-from math import factorial
+from types import ModuleType
 
 import numpy as np
 import numpy.typing as npt
 from scipy.linalg import lu_factor, lu_solve
 
-from dolfinx_universal.core.arrays import Float, Int, lagrange_element, readonly
-from dolfinx_universal.curved import bounds_tet as _tet
+from dolfinx_universal.cells.kit import cell_kernels
+from dolfinx_universal.core.arrays import Float, readonly
+from dolfinx_universal.curved import bounds_tet, bounds_tri
 
 __all__ = [
     "MAX_DEGREE",
-    "bernstein_basis",
     "bernstein_coefficients",
-    "bernstein_indices",
     "check_degree",
     "jacobian_bounds",
-    "jacobian_determinant",
 ]
 
+
+_PIECES: dict[int, ModuleType] = {2: bounds_tri, 3: bounds_tet}
+"""The Bernstein–Bézier pieces per topological dimension (the same names in both modules:
+``bernstein_basis``, ``control_points``, ``subdivision``, ``CHILDREN``, ``MAX_DEPTH``,
+``lattice_blocks``, ``lattice_determinant``, ``affine_determinant``)."""
 
 MAX_DEGREE = {2: 7, 3: 5}
 """The highest geometry degree ``q`` per topological dimension whose validity proof is
@@ -74,10 +77,9 @@ class _ToBernstein:
 @lru_cache(maxsize=16)
 def _to_bernstein(tdim: int, order: int) -> _ToBernstein:
     """The ``_ToBernstein`` of degree ``order`` on the reference triangle (``tdim = 2``)
-    or tetrahedron (``tdim = 3``), at the control points of :func:`bernstein_basis`."""
-    if tdim == 2:
-        return _ToBernstein(bernstein_basis(order, _control_points(order)))
-    return _ToBernstein(_tet.bernstein_basis(order, _tet.control_points(order)))
+    or tetrahedron (``tdim = 3``), at the control points of its ``bernstein_basis``."""
+    pieces = _PIECES[tdim]
+    return _ToBernstein(pieces.bernstein_basis(order, pieces.control_points(order)))
 
 
 def check_degree(degree: float, tdim: int) -> int:
@@ -92,9 +94,9 @@ def check_degree(degree: float, tdim: int) -> int:
         raise ValueError(f"geometry degree must be an integer >= 1, got {degree}")
     top = MAX_DEGREE[tdim]
     if degree > top:
-        cells = "triangles" if tdim == 2 else "tetrahedra"
         raise ValueError(
-            f"geometry degree {int(degree)} is above {top}, the highest for {cells}: the "
+            f"geometry degree {int(degree)} is above {top}, the highest for "
+            f"{cell_kernels(tdim).plural}: the "
             f"proof that curved cells are valid (Bernstein coefficients of det J, of degree "
             f"{tdim}(q - 1)) is accurate to about 1e-11 up to it and loses accuracy to "
             f"rounding fast beyond it"
@@ -102,155 +104,36 @@ def check_degree(degree: float, tdim: int) -> int:
     return int(degree)
 
 
-# Midpoint subdivision of the reference triangle: the vertices of the four children.
-_P0, _P1, _P2 = (0.0, 0.0), (1.0, 0.0), (0.0, 1.0)
-_M01, _M12, _M02 = (0.5, 0.0), (0.5, 0.5), (0.0, 0.5)
-_CHILDREN = np.array([[_P0, _M01, _M02], [_M01, _P1, _M12], [_M02, _M12, _P2], [_M12, _M02, _M01]])
-
-
-@lru_cache(maxsize=16)
-def bernstein_indices(order: int) -> Int:
-    """Multi-indices ``(a0, a1, a2)``, ``a0 + a1 + a2 = order``, of the Bernstein basis.
-
-    Row ``b`` is the basis polynomial ``B_b = order! / (a0! a1! a2!) l0^a0 l1^a1 l2^a2`` in
-    the barycentric coordinates ``(l0, l1, l2) = (1 - X - Y, X, Y)`` of the reference
-    triangle; its control point is ``(a1, a2) / order``. Rows run over ``a1`` then ``a2``.
-
-    Returns
-    -------
-    The indices, ``(nb, 3)`` with ``nb = (order + 1)(order + 2) / 2`` (read-only).
-    """
-    rows = [(order - i - j, i, j) for i in range(order + 1) for j in range(order + 1 - i)]
-    return readonly(np.array(rows, dtype=np.int64))
-
-
-def _control_points(order: int) -> Float:
-    """Reference coordinates of the Bernstein control points, ``(nb, 2)``."""
-    return bernstein_indices(order)[:, 1:] / max(order, 1)
-
-
-def bernstein_basis(order: int, points: Float) -> Float:
-    """The Bernstein basis of degree ``order`` on the reference triangle at points.
-
-    Parameters
-    ----------
-    order
-        Polynomial degree ``d >= 0``.
-    points
-        Reference coordinates ``(X, Y)``, ``(p, 2)``.
-
-    Returns
-    -------
-    ``B[p, b]``, ``(p, nb)``, columns in the order of :func:`bernstein_indices`.
-    """
-    points = np.asarray(points, dtype=np.float64)
-    alpha = bernstein_indices(order)
-    lam = np.column_stack([1.0 - points[:, 0] - points[:, 1], points[:, 0], points[:, 1]])
-    mult = np.array([factorial(order) / np.prod([factorial(a) for a in r]) for r in alpha])
-    return mult * np.prod(lam[:, None, :] ** alpha[None, :, :], axis=2)
-
-
-def _casteljau_step(order: int, w: Float) -> Float:
-    """One de Casteljau step at barycentric point ``w``: degree ``order`` coefficients to
-    degree ``order - 1``, ``(nb(order - 1), nb(order))``."""
-    index = {tuple(a): k for k, a in enumerate(bernstein_indices(order))}
-    lower = bernstein_indices(order - 1)
-    step = np.zeros((len(lower), len(index)))
-    for r, a in enumerate(lower):
-        for i in range(3):
-            b = a.copy()
-            b[i] += 1
-            step[r, index[tuple(b)]] += w[i]
-    return step
-
-
-@lru_cache(maxsize=16)
-def _subdivision(order: int) -> Float:
-    """Midpoint subdivision of Bernstein coefficients of degree ``order``, ``(nb, 8 nb)``.
-
-    ``c @ S`` holds, for child ``k`` of the four, the values of the polynomial at the
-    child's control points in columns ``2k nb + (0..nb)`` and its Bernstein coefficients on
-    the child in columns ``(2k + 1) nb + (0..nb)``. The coefficients are blossoms at the
-    child's vertices (de Casteljau steps with weights 0, 1/2, 1): exact in floating point.
-    """
-    alpha = bernstein_indices(order)
-    nb = len(alpha)
-    blocks = []
-    for child in _CHILDREN:
-        w = np.column_stack([1.0 - child.sum(axis=1), child])  # barycentric vertices
-        steps = [[_casteljau_step(r, w[i]) for r in range(order, 0, -1)] for i in range(3)]
-        coefficients = np.zeros((nb, nb))
-        for row, a in enumerate(alpha):
-            pts = [i for i in range(3) for _ in range(a[i])]
-            op = np.eye(nb)
-            for r, i in enumerate(pts):
-                op = steps[i][r] @ op  # the blossom is symmetric: any order of the points
-            coefficients[row] = op[0]
-        values = bernstein_basis(order, _control_points(order)) @ coefficients
-        blocks += [values.T, coefficients.T]
-    return readonly(np.hstack(blocks))
-
-
-@lru_cache(maxsize=16)
-def _lattice_derivatives(degree: int) -> Float:
-    """Reference derivatives of the degree-q Lagrange basis at the degree-2(q-1) control
-    points, ``(2, nb, ndofs)``."""
-    pts = _control_points(2 * (degree - 1))
-    return readonly(
-        np.ascontiguousarray(lagrange_element("triangle", degree).tabulate(1, pts)[1:, :, :, 0])
-    )
-
-
-def _determinant(nodes: Float, dphi: Float) -> Float:
-    """``det J``, ``(m, p)``, from nodes ``(m, ndofs, 2)`` and derivatives ``(2, p, ndofs)``."""
-    p = dphi.shape[1]
-    g = nodes.transpose(0, 2, 1) @ np.hstack([dphi[0].T, dphi[1].T])  # (m, 2 (x, y), 2p)
-    return g[:, 0, :p] * g[:, 1, p:] - g[:, 1, :p] * g[:, 0, p:]
-
-
-def jacobian_determinant(nodes: Float, degree: int, points: Float) -> Float:
-    """``det J`` of degree-q triangle maps at reference points.
-
-    Parameters
-    ----------
-    nodes
-        Node coordinates of each cell, ``(m, ndofs, 2)``, in DOLFINx's (basix's) node order
-        of the GLL-warped Lagrange element of degree ``degree``.
-    degree
-        Geometry degree ``q >= 1``.
-    points
-        Reference coordinates, ``(p, 2)``.
-
-    Returns
-    -------
-    ``det J``, ``(m, p)``.
-    """
-    dphi = lagrange_element("triangle", degree).tabulate(1, np.asarray(points, dtype=np.float64))[
-        1:, :, :, 0
-    ]
-    return _determinant(np.asarray(nodes, dtype=np.float64), dphi)
-
-
 def bernstein_coefficients(nodes: Float, degree: int) -> Float:
-    """Bernstein coefficients of ``det J`` (a polynomial of degree ``d = 2(q-1)``).
+    """Bernstein coefficients of ``det J`` (a polynomial of degree ``d = tdim (q-1)``).
 
     Exact up to rounding: ``det J`` is evaluated at the ``nb`` control points and the
-    collocation matrix inverted. ``det J(X) = sum_b c[:, b] B_b(X)`` with ``B`` from
-    :func:`bernstein_basis` of degree ``d``.
+    collocation matrix inverted. ``det J(X) = sum_b c[:, b] B_b(X)`` with ``B`` the
+    ``bernstein_basis`` of degree ``d`` of :mod:`.bounds_tri` or :mod:`.bounds_tet`.
 
     Parameters
     ----------
     nodes
-        Node coordinates of each cell, ``(m, ndofs, 2)``.
+        Node coordinates of each cell, ``(m, ndofs, 2)`` (triangles) or ``(m, ndofs, 3)``
+        (tetrahedra).
     degree
         Geometry degree ``q >= 1``.
 
     Returns
     -------
-    The coefficients ``c``, ``(m, nb)`` with ``nb = (d + 1)(d + 2) / 2``.
+    The coefficients ``c``, ``(m, nb)`` with ``nb`` the dimension of the degree-``d``
+    polynomials (``(d + 1)(d + 2) / 2`` on triangles).
     """
-    det = _determinant(np.asarray(nodes, dtype=np.float64), _lattice_derivatives(degree))
-    return _to_bernstein(2, 2 * (degree - 1))(det)
+    nodes = np.asarray(nodes, dtype=np.float64)
+    tdim = _cell_dimension(nodes)
+    det = _PIECES[tdim].lattice_determinant(nodes, degree)
+    return _to_bernstein(tdim, tdim * (degree - 1))(det)
+
+
+def _cell_dimension(nodes: Float) -> int:
+    """The dimension of the cells whose nodes are ``nodes (m, ndofs, gdim)`` (an argument
+    of the entry points): 3 for tetrahedra (three coordinates), else 2 (triangles)."""
+    return 3 if nodes.ndim == 3 and nodes.shape[2] == 3 else 2
 
 
 def _first_level(
@@ -336,25 +219,16 @@ def jacobian_bounds(
     """
     nodes = np.asarray(nodes, dtype=np.float64)
     m = len(nodes)
-    tetrahedra = nodes.ndim == 3 and nodes.shape[2] == 3
-    degree = check_degree(degree, 3 if tetrahedra else 2)
-    if tetrahedra:
-        order = 3 * (degree - 1)
-        det0 = _tet.affine_determinant(nodes)
-        blocks = _tet.lattice_blocks(nodes, degree)
-        split, nchildren = _tet.subdivision(order), 8
-        max_depth = 6 if max_depth is None else max_depth
-    else:
-        order = 2 * (degree - 1)
-        p = nodes[:, :3]
-        det0 = (p[:, 1, 0] - p[:, 0, 0]) * (p[:, 2, 1] - p[:, 0, 1]) - (p[:, 2, 0] - p[:, 0, 0]) * (
-            p[:, 1, 1] - p[:, 0, 1]
-        )
-        blocks = iter([(0, _determinant(nodes, _lattice_derivatives(degree)))])  # (m, nb)
-        split, nchildren = _subdivision(order), 4
-        max_depth = 8 if max_depth is None else max_depth
+    tdim = _cell_dimension(nodes)
+    pieces = _PIECES[tdim]
+    degree = check_degree(degree, tdim)
+    order = tdim * (degree - 1)
+    det0 = pieces.affine_determinant(nodes)
+    blocks = pieces.lattice_blocks(nodes, degree)
+    split, nchildren = pieces.subdivision(order), len(pieces.CHILDREN)
+    max_depth = pieces.MAX_DEPTH if max_depth is None else max_depth
     nb = split.shape[0]
-    bad, upper, coef = _first_level(blocks, det0, _to_bernstein(3 if tetrahedra else 2, order), nb)
+    bad, upper, coef = _first_level(blocks, det0, _to_bernstein(tdim, order), nb)
     lower = np.full(m, np.inf)
     cell = np.arange(m)  # the cell of each leaf
     for depth in range(max_depth + 1):

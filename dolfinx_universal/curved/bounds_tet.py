@@ -1,4 +1,5 @@
-"""Bernstein–Bézier pieces of the Jacobian bounds for tetrahedra (the 3D part of :mod:`.jacobian`).
+"""Bernstein–Bézier pieces of the Jacobian bounds for tetrahedra (the 3D part of
+:func:`~dolfinx_universal.curved.bounds.jacobian_bounds`).
 
 ``det J`` of a degree-q tetrahedron map is a polynomial of degree ``3(q - 1)`` on the
 reference tetrahedron. Its Bernstein coefficients bound it from below; red refinement (eight
@@ -20,6 +21,8 @@ from dolfinx_universal.core.arrays import Float, Int, lagrange_element, readonly
 
 __all__ = [
     "CHILDREN",
+    "MAX_DEPTH",
+    "affine_determinant",
     "bernstein_basis",
     "bernstein_indices",
     "control_points",
@@ -30,6 +33,10 @@ __all__ = [
     "subdivision",
 ]
 
+
+MAX_DEPTH = 6
+"""Subdivision levels of :func:`~dolfinx_universal.curved.bounds.jacobian_bounds` by default
+(leaves down to ``8^-6`` of the volume)."""
 
 _P = np.eye(4)[:, 1:]  # reference vertices P0..P3
 _M = {(i, j): 0.5 * (_P[i] + _P[j]) for i in range(4) for j in range(i + 1, 4)}

@@ -19,9 +19,9 @@ from dolfinx import mesh as dmesh
 
 from dolfinx_universal.backgrounds.graded_tri import EDGE_FACTOR, graded_mesh
 from dolfinx_universal.boundaries.curves import Boundary
-from dolfinx_universal.cells import tet as tet
-from dolfinx_universal.conforming.classify import interior_angles, positively_cut
-from dolfinx_universal.conforming.quality import cell_quality, edge_ratio, radius_ratio
+from dolfinx_universal.cells.kit import cell_kernels
+from dolfinx_universal.conforming.classify import positively_cut
+from dolfinx_universal.conforming.quality import cell_quality
 from dolfinx_universal.conforming.universal import UniversalMesh
 from dolfinx_universal.core.arrays import all_rows, any_rows, write_cell_nodes
 from dolfinx_universal.core.collective import (
@@ -33,17 +33,20 @@ from dolfinx_universal.core.collective import (
     where,
 )
 from dolfinx_universal.core.compiled import pointer, relax_kernels
-from dolfinx_universal.curved import maps_tet as _curved_tet
 from dolfinx_universal.curved.bounds import check_degree
-from dolfinx_universal.curved.maps import MAPS, jacobian_ratio, map_nodes, reference_nodes
+from dolfinx_universal.curved.maps import CELL_MAPS, MAPS, jacobian_ratio
 from dolfinx_universal.io import redistribute
 from dolfinx_universal.meshing.domain import MAX_CELLS, UniformPlan, size_from_geometry
+from dolfinx_universal.moving import quality_tet, quality_tri
 from dolfinx_universal.sizing.fields import CurveSamples, SizeField, feature_size, target_sizes
 
 COVERAGE_TOLERANCE = 1.5
 """A step may ask for sizes this much finer than the background built for the motion."""
 
 __all__ = ["MovingDomain", "StepReport"]
+
+_QUALITY = {2: quality_tri, 3: quality_tet}
+"""The quality of the cells a step leaves unaltered, per topological dimension."""
 
 
 @dataclass
@@ -199,8 +202,10 @@ class MovingDomain:
         self.active_cells = np.empty(0, dtype=np.int32)
         """Cells of ``T_h^sub`` (process-local, owned and ghost)."""
         self._cells = np.arange(len(self._c2v), dtype=np.int32)
-        # tetrahedra: the dihedral histogram of the owned kept cells (background angles)
-        self._kept_histogram = np.zeros(len(tet.DIHEDRAL_BIN_EDGES) - 1, dtype=np.int64)
+        self._maps = CELL_MAPS[tdim]
+        self._unaltered = _QUALITY[tdim]
+        # the angle histogram of the owned kept cells (background angles; tetrahedra)
+        self._kept_histogram = np.zeros(self._unaltered.HISTOGRAM_BINS, dtype=np.int64)
         self._active_tags: dmesh.MeshTags | None = self._tags()
         self.steps: list[StepReport] = []
         self._coverage: tuple[SizeField, npt.NDArray[np.float64], int, float | None] | None = None
@@ -270,10 +275,26 @@ class MovingDomain:
             positions = list(motion)
         if not positions:
             raise ValueError("the motion has no positions")
-        if getattr(positions[0], "gdim", 2) == 3:
-            return cls._from_surface_motion(
-                comm, positions, h, degree, map, box, size_factor, max_rounds, options
-            )
+        build = {2: cls._from_curve_motion, 3: cls._from_surface_motion}
+        return build[getattr(positions[0], "gdim", 2)](
+            comm, positions, h, degree, map, box, size_factor, max_rounds, options
+        )
+
+    @classmethod
+    def _from_curve_motion(
+        cls,
+        comm: MPI.Comm,
+        positions: list[Boundary],
+        h: float,
+        degree: int,
+        map: str,
+        box: npt.ArrayLike | None,
+        size_factor: float | None,
+        max_rounds: int,
+        options: dict[str, Any],
+    ) -> MovingDomain:
+        """:meth:`from_motion` for curves: the graded background sized by the geometry of
+        every position, refined near the points where a position fails a refinable check."""
         box_arr, field, _, _ = size_from_geometry(
             comm,
             positions,
@@ -395,105 +416,155 @@ class MovingDomain:
             On every rank if the domain cannot be meshed (nothing is changed then).
         """
         t0 = time.perf_counter()
+        sm = self._straight_map(boundary)
+        t1 = time.perf_counter()
+        near, flip, redo = self._cells_to_rewrite(sm)
+        cells, kept = self._c2v[redo], sm.kept[redo]
+        cut = np.flatnonzero(kept & positively_cut(sm.sign, cells))
+        # the facets of Gamma_h: of each positively cut cell, the one opposite its inside vertex
+        positive = self._c2f[redo[cut], np.argmin(sm.sign[cells[cut]], axis=1)]
+        curve, nodes = self._curved_nodes(sm, boundary, redo, cut, positive)
+        ratio = self._proven_valid(nodes[np.flatnonzero(kept[curve])])
+        self._write_nodes(sm.y, redo, curve, kept, nodes)
+        self._set_domain(sm, near, flip, redo, positive, boundary)
+        t2 = time.perf_counter()
+        report = self._report(
+            sm, near, redo, ratio, dict(sm.timings, geometry=t2 - t1, total=t2 - t0)
+        )
+        self.steps.append(report)
+        return report
+
+    def _straight_map(self, boundary: Boundary):
+        """The straight map ``M_h`` of the step, after the coverage check of
+        :meth:`from_motion`'s background (collective); its errors name the step."""
         if self._coverage is not None:
             self._check_coverage(boundary)
         try:
-            sm = self.universal.straight_map(boundary)
+            return self.universal.straight_map(boundary)
         except MeshingError as e:
             raise type(e)(f"step {len(self.steps)}: {e}", e.points, e.refinable) from None
-        t1 = time.perf_counter()
-        c2v = self._c2v
-        # Cells to rewrite: those whose nodes differ from the background's now (a vertex
-        # moved or on Gamma: every curved cell has one), and those that differed at the
-        # previous step (restored to their straight background shape). Cells whose
-        # activity changed elsewhere (a large jump of the body) are rewritten too, to set
-        # their indicator. All of them are among the band's cells.
-        band = sm.near_cells
+
+    def _cells_to_rewrite(
+        self, sm
+    ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_], npt.NDArray[np.intp]]:
+        """The cells whose nodes differ from the background's now (``near``: a vertex moved
+        or on Gamma, as every curved cell has), the cells entering or leaving the domain
+        (``flip``), and the cells to rewrite (``redo``): those, and those that differed at
+        the previous step (restored to their straight background shape). Cells whose
+        activity changed elsewhere (a large jump of the body) are rewritten to set their
+        indicator. All of them are among the band's cells."""
+        c2v, band = self._c2v, sm.near_cells
         near = np.zeros(len(c2v), dtype=bool)
         near[band[any_rows((sm.moved | sm.on_gamma)[c2v[band]])]] = True
-        flip = sm.kept != self._kept  # cells entering or leaving the domain
-        redo = np.flatnonzero(near | self._dirty | flip)
-        cells = c2v[redo]
-        kept = sm.kept[redo]
-        cut = np.flatnonzero(kept & positively_cut(sm.sign, cells))
-        # The curved map on the cells it curves (``curve``, among ``redo``); every other
-        # node is the affine image of its entity's vertices, written below.
-        if self.tdim == 2:
-            curve = cut
-            nodes = collective_call(
-                self.comm,
-                "the curved map",
-                map_nodes,
-                cells[curve],
-                sm.y,
-                sm.x,
-                sm.sign,
-                self.degree,
-                self._kind,
-                boundary.closest_point,
-            )
-        elif self.degree == 1:  # straight tetrahedra: nothing is curved
-            curve, nodes = cut[:0], np.empty((0, 4, 3))
-        else:
-            face, edges = self._gamma_entities(sm, redo, cut)
-            curve = np.flatnonzero(any_rows(edges))
-            nodes = collective_call(
-                self.comm,
-                "the curved map",
-                _curved_tet.map_nodes,
-                cells[curve],
-                sm.y,
-                sm.x,
-                face[curve],
-                edges[curve],
-                self.degree,
-                self._kind,
-                boundary.closest_point,
-            )
-        curved = np.flatnonzero(kept[curve])  # the active ones, proven valid
-        ratio = jacobian_ratio(nodes[curved], self.degree) if self.degree > 1 else np.ones(0)
+        flip = sm.kept != self._kept
+        return near, flip, np.flatnonzero(near | self._dirty | flip)
+
+    def _curved_nodes(
+        self,
+        sm,
+        boundary: Boundary,
+        redo: npt.NDArray[np.intp],
+        cut: npt.NDArray[np.intp],
+        positive: npt.NDArray[np.int32],
+    ) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.float64]]:
+        """The cells among ``redo`` that the curved map changes (indices into ``redo``) and
+        their nodes (collective); every other node is the affine image of its entity's
+        vertices. ``cut``: the positively cut kept cells among ``redo``; ``positive``: their
+        facets on Gamma_h."""
+        if self.degree == 1:  # straight cells: nothing is curved
+            return cut[:0], np.empty((0, self.tdim + 1, self.tdim))
+        cells = self._c2v[redo]
+        curve, cell_map = self._maps.curved_cells(
+            self.mesh,
+            cells,
+            cut,
+            positive,
+            sm.on_gamma,
+            sm.sign,
+            sm.x,
+            self.degree,
+            self._kind,
+            boundary.closest_point,
+            rows=redo,
+        )
+        nodes = collective_call(self.comm, "the curved map", cell_map, cells[curve], sm.y)
+        return curve, nodes
+
+    def _proven_valid(self, nodes: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """The proven lower bounds of ``det J / det J_affine`` of the active curved cells
+        ``nodes``; raises on every rank if one would be inverted (collective)."""
+        ratio = jacobian_ratio(nodes, self.degree) if self.degree > 1 else np.ones(0)
         bad = ratio <= 0
+        plural = cell_kernels(self.tdim).plural
         raise_collective(
             self.comm,
             [
                 Problem(
                     f"step {len(self.steps)}: "
                     + "{count} curved "
-                    + ("triangles" if self.tdim == 2 else "tetrahedra")
+                    + plural
                     + " would be inverted near {where}: refine the background there",
-                    nodes[curved[bad]].mean(axis=1),
+                    nodes[bad].mean(axis=1),
                     int(bad.sum()),
                 )
             ]
             if bad.any()
             else [],
         )
-        # Write the nodes in place: the affine ones, then the curved cells' (inactive ones
-        # first, so that on Gamma_h the active cell's curved nodes win).
+        return ratio
+
+    def _write_nodes(
+        self,
+        y: npt.NDArray[np.float64],
+        redo: npt.NDArray[np.intp],
+        curve: npt.NDArray[np.intp],
+        kept: npt.NDArray[np.bool_],
+        nodes: npt.NDArray[np.float64],
+    ) -> None:
+        """Write the nodes of the cells ``redo`` in place: the affine ones, then the curved
+        cells' (inactive ones first, so that on Gamma_h the active cell's curved nodes
+        win), and copy them to the ghosts (collective)."""
         x = self.mesh.geometry.x
-        touched = self._write_affine_nodes(redo, sm.y, x)
+        touched = self._write_affine_nodes(redo, y, x)
         order = np.argsort(kept[curve], kind="stable")
         written = redo[curve[order]]
         write_cell_nodes(x, self._dofmap, written, nodes, order)
         rows = np.concatenate([touched, self._dofmap[written].ravel()])
         self._sync_ghost_nodes(rows, x)
-        if self.tdim == 3:
-            owned = np.flatnonzero(flip[: self._nco])
-            kept_now = sm.kept[owned]
-            self._kept_histogram += self._histogram(owned[kept_now])
-            self._kept_histogram -= self._histogram(owned[~kept_now])
+
+    def _set_domain(
+        self,
+        sm,
+        near: npt.NDArray[np.bool_],
+        flip: npt.NDArray[np.bool_],
+        redo: npt.NDArray[np.intp],
+        positive: npt.NDArray[np.int32],
+        boundary: Boundary,
+    ) -> None:
+        """Record the step's domain: the kept cells' histogram, the cells to restore at the
+        next step, the indicator, the active cells, the facets of Gamma_h, the boundary."""
+        owned = np.flatnonzero(flip[: self._nco])
+        kept_now = sm.kept[owned]
+        self._kept_histogram += self._histogram(owned[kept_now])
+        self._kept_histogram -= self._histogram(owned[~kept_now])
         self._dirty, self._kept = near, sm.kept
-        self.active.x.array[self._cell_dof[redo]] = kept.astype(np.float64)
+        self.active.x.array[self._cell_dof[redo]] = sm.kept[redo].astype(np.float64)
         self.active_cells = np.flatnonzero(sm.kept).astype(np.int32)
         self._active_tags = None  # made when asked for (active_tags)
-        k = np.argmin(sm.sign[cells[cut]], axis=1)
-        self.immersed_facets = np.unique(self._c2f[redo[cut], k]).astype(np.int32)
+        self.immersed_facets = np.unique(positive).astype(np.int32)
         self.boundary = boundary
-        t2 = time.perf_counter()
 
+    def _report(
+        self,
+        sm,
+        near: npt.NDArray[np.bool_],
+        redo: npt.NDArray[np.intp],
+        ratio: npt.NDArray[np.float64],
+        timings: dict[str, float],
+    ) -> StepReport:
+        """The :class:`StepReport` of the step (collective)."""
         quality = self._quality(sm, near)
-        timings = dict(sm.timings, geometry=t2 - t1, total=t2 - t0)
-        report = StepReport(
+        return StepReport(
             step=len(self.steps),
             timings=timings,
             quality=quality,
@@ -503,8 +574,6 @@ class MovingDomain:
                 float(ratio.min()) if len(ratio) else 1.0, op=MPI.MIN
             ),
         )
-        self.steps.append(report)
-        return report
 
     @cached_property
     def _node_entity(self) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
@@ -513,7 +582,7 @@ class MovingDomain:
         dofmap = self._dofmap
         code = np.empty(self.mesh.geometry.x.shape[0], dtype=np.int64)
         code[dofmap] = np.arange(dofmap.size, dtype=np.int64).reshape(dofmap.shape)
-        lam = (_curved_tet.reference_nodes if self.tdim == 3 else reference_nodes)(self.degree)
+        lam = self._maps.reference_nodes(self.degree)
         return code, lam
 
     def _write_affine_nodes(
@@ -523,7 +592,7 @@ class MovingDomain:
         ``redo`` into ``x``, each node once, and return them.
 
         A node is the image of its reference point in one cell holding it, summed in vertex
-        order (the sums of :func:`~dolfinx_universal.curved.maps.map_nodes`): the same value as
+        order (the sums of :func:`~dolfinx_universal.curved.maps_tri.map_nodes`): the same value as
         from any other cell for a node on a vertex or an edge, within an ulp on a face. A C
         kernel where available (one pass over the cells), else numpy: bitwise the same.
         """
@@ -552,19 +621,6 @@ class MovingDomain:
             value += w[:, k : k + 1] * y[v[:, k]]
         x[touched, : self.tdim] = value
         return touched
-
-    def _gamma_entities(
-        self, sm, redo: npt.NDArray[np.intp], cut: npt.NDArray[np.intp]
-    ) -> tuple[npt.NDArray[np.int8], npt.NDArray[np.bool_]]:
-        """Positive face and edges of Gamma_h of the cells ``redo`` of a tetrahedral
-        background (see :func:`~dolfinx_universal.curved.maps_tet.gamma_entities`): the outside
-        neighbour of a positive face gets the same face and edges as the kept cell, so the
-        nodes they share agree. ``cut``: the positively cut kept cells among ``redo``.
-        Collective."""
-        k = np.argmin(sm.sign[self._c2v[redo[cut]]], axis=1)
-        faces = self._c2f[redo[cut], k]
-        faces = np.unique(faces[faces < self.mesh.topology.index_map(2).size_local])
-        return _curved_tet.gamma_entities(self.mesh, sm.on_gamma, faces, redo)
 
     def _sync_ghost_nodes(self, rows: npt.NDArray[np.int32], x: npt.NDArray[np.float64]) -> None:
         """Copy the owners' values of the rewritten nodes to their ghosts (collective).
@@ -640,52 +696,29 @@ class MovingDomain:
 
             rep["theta_min_deg"] = min(rep["theta_min_deg"], ext("theta_min", np.min, 180.0))
             rep["theta_max_deg"] = max(rep["theta_max_deg"], ext("theta_max", np.max, 0.0))
-            if self.tdim == 2:
-                rep["q_max"] = max(rep["q_max"], ext("q", np.max, 0.0))
-                rep["Q3_max"] = max(rep["Q3_max"], ext("Q", np.max, 0.0))
-                rep["min_area_ratio"] = min(rep["min_area_ratio"], 1.0)
-            else:
-                rep["radius_ratio_min"] = min(rep["radius_ratio_min"], ext("rr", np.min, 1.0))
-                rep["mean_ratio_min"] = min(rep["mean_ratio_min"], ext("mr", np.min, 1.0))
-                rep["min_volume_ratio"] = min(rep["min_volume_ratio"], 1.0)
+
+            def histogram() -> npt.NDArray[np.int64]:
                 hist = self._kept_histogram - self._histogram(near_kept[~plain])
                 self.comm.Allreduce(MPI.IN_PLACE, hist, op=MPI.SUM)
-                rep["dihedral_histogram"] = [
-                    int(a + c) for a, c in zip(rep["dihedral_histogram"], hist)
-                ]
+                return hist
+
+            self._unaltered.merge_far(rep, ext, histogram)
             rep["n_cells"] += n_far
             rep["n_unaltered"] += n_far
             rep["percent_unaltered"] = 100.0 * rep["n_unaltered"] / max(rep["n_cells"], 1)
         return rep
 
     def _histogram(self, cells: npt.NDArray[np.intp]) -> npt.NDArray[np.int64]:
-        """Histogram of the background dihedral angles of owned ``cells``."""
-        nbins = len(tet.DIHEDRAL_BIN_EDGES) - 1
+        """Histogram of the background angles of owned ``cells`` (tetrahedra: dihedral
+        angles; triangles: empty)."""
         bins = self._background_quality["bins"][cells].ravel()
-        return np.bincount(bins, minlength=nbins).astype(np.int64)
+        return np.bincount(bins, minlength=self._unaltered.HISTOGRAM_BINS).astype(np.int64)
 
     @cached_property
     def _background_quality(self) -> dict[str, npt.NDArray[Any]]:
         """Per-cell quality of the owned background cells."""
         x, cells = self.universal.vertex_coordinates, self._c2v[: self._nco]
-        if self.tdim == 2:
-            ang = np.degrees(interior_angles(x, cells))
-            return {
-                "theta_min": ang.min(axis=1),
-                "theta_max": ang.max(axis=1),
-                "q": radius_ratio(x, cells),
-                "Q": edge_ratio(x, cells),
-            }
-        ang = np.degrees(tet.dihedral_angles(x, cells))
-        bins = np.searchsorted(tet.DIHEDRAL_BIN_EDGES, ang, side="right") - 1
-        bins = np.clip(bins, 0, len(tet.DIHEDRAL_BIN_EDGES) - 2).astype(np.int8)
-        return {
-            "theta_min": ang.min(axis=1),
-            "theta_max": ang.max(axis=1),
-            "rr": tet.radius_ratio(x, cells),
-            "mr": np.abs(tet.mean_ratio(x, cells)),
-            "bins": bins,  # each dihedral angle's histogram bin (m, 6)
-        }
+        return self._unaltered.background_quality(x, cells)
 
     @cached_property
     def _background_order(self) -> dict[str, npt.NDArray[np.intp]]:
