@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from dolfinx import mesh as dmesh
 
-from dolfinx_universal.cells import tri as _geometry
+from dolfinx_universal.cells import tet, tri
 from dolfinx_universal.core.arrays import Float, Int
 
 __all__ = ["CellKernels", "cell_kernels"]
@@ -42,6 +42,8 @@ class CellKernels:
     angles: Callable[[Float, Int], Float]
     """The angles that measure quality (radians): interior angles ``(m, 3)`` of triangles,
     dihedral angles ``(m, 6)`` of tetrahedra."""
+    angle_name: str
+    """The angle that measures quality in messages ("an angle", "a dihedral angle")."""
     max_min_angle: float
     """Smallest angle (degrees) of the regular cell: the largest sensible quality floor."""
     inward_push: bool
@@ -52,41 +54,41 @@ class CellKernels:
     relaxation moves them afterwards."""
 
 
-def _tetrahedra() -> CellKernels:
-    from dolfinx_universal.cells import tet as tet
-
-    return CellKernels(
-        tdim=3,
-        cell_type=dmesh.CellType.tetrahedron,
-        name="tetrahedron",
-        plural="tetrahedra",
-        facet_name="face",
-        signed_measures=tet.signed_volumes,
-        cell_diameters=tet.cell_diameters,
-        angles=tet.dihedral_angles,
-        max_min_angle=float(np.degrees(np.arccos(1.0 / 3.0))),
-        inward_push=False,
-    )
-
-
 _TRIANGLES = CellKernels(
     tdim=2,
     cell_type=dmesh.CellType.triangle,
     name="triangle",
     plural="triangles",
     facet_name="edge",
-    signed_measures=_geometry.signed_areas,
-    cell_diameters=_geometry.cell_diameters,
-    angles=_geometry.interior_angles,
+    signed_measures=tri.signed_areas,
+    cell_diameters=tri.cell_diameters,
+    angles=tri.interior_angles,
+    angle_name="an angle",
     max_min_angle=60.0,
     inward_push=True,
 )
 
 
+_TETRAHEDRA = CellKernels(
+    tdim=3,
+    cell_type=dmesh.CellType.tetrahedron,
+    name="tetrahedron",
+    plural="tetrahedra",
+    facet_name="face",
+    signed_measures=tet.signed_volumes,
+    cell_diameters=tet.cell_diameters,
+    angles=tet.dihedral_angles,
+    angle_name="a dihedral angle",
+    max_min_angle=float(np.degrees(np.arccos(1.0 / 3.0))),
+    inward_push=False,
+)
+
+_KITS = {2: _TRIANGLES, 3: _TETRAHEDRA}
+
+
 def cell_kernels(tdim: int) -> CellKernels:
     """The kernels of triangle (``tdim = 2``) or tetrahedron (``tdim = 3``) meshes."""
-    if tdim == 2:
-        return _TRIANGLES
-    if tdim == 3:
-        return _tetrahedra()
-    raise ValueError(f"universal meshes are triangle or tetrahedron meshes, got tdim = {tdim}")
+    kit = _KITS.get(tdim)
+    if kit is None:
+        raise ValueError(f"universal meshes are triangle or tetrahedron meshes, got tdim = {tdim}")
+    return kit

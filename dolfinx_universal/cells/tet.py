@@ -51,6 +51,13 @@ __all__ = [
     "quality_summary",
     "radius_ratio",
     "signed_volumes",
+    "soa_corners",
+    "soa_cross",
+    "soa_det6",
+    "soa_dihedral",
+    "soa_dot",
+    "soa_sq",
+    "soa_sub",
     "star_entries",
     "star_faces",
     "star_quality",
@@ -108,7 +115,7 @@ def signed_volumes(x: Float, cells: Int) -> Float:
 
     Positive for tetrahedra oriented as the reference tetrahedron.
     """
-    return _soa_det6(_soa_corners(x, cells)) / 6.0
+    return soa_det6(soa_corners(x, cells)) / 6.0
 
 
 def edge_lengths(x: Float, cells: Int) -> Float:
@@ -117,8 +124,8 @@ def edge_lengths(x: Float, cells: Int) -> Float:
     Column ``e`` is the length of edge :data:`EDGES` ``[e]``, i.e. of the local vertex pairs
     ``(2, 3), (1, 3), (1, 2), (0, 3), (0, 2), (0, 1)`` (basix's edge numbering).
     """
-    p = _soa_corners(x, cells)
-    return np.column_stack([np.sqrt(_soa_sq(_soa_sub(p[j], p[i]))) for i, j in EDGES])
+    p = soa_corners(x, cells)
+    return np.column_stack([np.sqrt(soa_sq(soa_sub(p[j], p[i]))) for i, j in EDGES])
 
 
 def cell_diameters(x: Float, cells: Int) -> Float:
@@ -126,7 +133,7 @@ def cell_diameters(x: Float, cells: Int) -> Float:
     return edge_lengths(x, cells).max(axis=1)
 
 
-def _soa_cross(u: list[Float], v: list[Float]) -> list[Float]:
+def soa_cross(u: list[Float], v: list[Float]) -> list[Float]:
     """Cross products of vectors given as their 3 component arrays."""
     return [
         u[1] * v[2] - u[2] * v[1],
@@ -135,28 +142,28 @@ def _soa_cross(u: list[Float], v: list[Float]) -> list[Float]:
     ]
 
 
-def _soa_dot(u: list[Float], v: list[Float]) -> Float:
+def soa_dot(u: list[Float], v: list[Float]) -> Float:
     """Dot products of vectors given as their 3 component arrays."""
     return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
 
 
-def _soa_sub(u: list[Float], v: list[Float]) -> list[Float]:
+def soa_sub(u: list[Float], v: list[Float]) -> list[Float]:
     """Differences of vectors given as their 3 component arrays."""
     return [u[0] - v[0], u[1] - v[1], u[2] - v[2]]
 
 
-def _soa_sq(u: list[Float]) -> Float:
+def soa_sq(u: list[Float]) -> Float:
     """Squared norms of vectors given as their 3 component arrays."""
     return u[0] ** 2 + u[1] ** 2 + u[2] ** 2
 
 
-def _soa_det6(p: list[list[Float]]) -> Float:
+def soa_det6(p: list[list[Float]]) -> Float:
     """``6 V`` of tetrahedra with corners ``p[vertex][coordinate]`` ``(m,)``."""
-    d = [_soa_sub(p[k], p[0]) for k in (1, 2, 3)]
-    return _soa_dot(d[0], _soa_cross(d[1], d[2]))
+    d = [soa_sub(p[k], p[0]) for k in (1, 2, 3)]
+    return soa_dot(d[0], soa_cross(d[1], d[2]))
 
 
-def _soa_corners(x: Float, cells: Int) -> list[list[Float]]:
+def soa_corners(x: Float, cells: Int) -> list[list[Float]]:
     """Corners of tetrahedra as ``p[vertex][coordinate]`` arrays ``(m,)``, each gathered
     from a coordinate column: the arithmetic on these contiguous arrays takes about half
     the time it takes on the strided columns of an ``(m, 4, 3)`` gather."""
@@ -168,21 +175,21 @@ def _soa_corners(x: Float, cells: Int) -> list[list[Float]]:
 
 def _soa_normals(p: list[list[Float]]) -> list[list[Float]]:
     """Area normals ``(b - a) x (c - a)`` of the facets :data:`FACETS` of corners ``p``."""
-    return [_soa_cross(_soa_sub(p[b], p[a]), _soa_sub(p[c], p[a])) for a, b, c in FACETS]
+    return [soa_cross(soa_sub(p[b], p[a]), soa_sub(p[c], p[a])) for a, b, c in FACETS]
 
 
 def _soa_edges_sq(p: list[list[Float]]) -> list[Float]:
     """Squared lengths of the edges :data:`EDGES` of corners ``p``."""
-    return [_soa_sq(_soa_sub(p[j], p[i])) for i, j in EDGES]
+    return [soa_sq(soa_sub(p[j], p[i])) for i, j in EDGES]
 
 
-def _soa_dihedral(
+def soa_dihedral(
     p: list[list[Float]],
     v6: Float,
     n: list[list[Float]] | None = None,
     edges_sq: list[Float] | None = None,
 ) -> Float:
-    """:func:`dihedral_angles` of corners ``p`` (:func:`_soa_corners`) with ``6 V`` ``v6``
+    """:func:`dihedral_angles` of corners ``p`` (:func:`soa_corners`) with ``6 V`` ``v6``
     (and the facet normals and squared edge lengths, if already computed)."""
     n = _soa_normals(p) if n is None else n
     edges_sq = _soa_edges_sq(p) if edges_sq is None else edges_sq
@@ -190,8 +197,8 @@ def _soa_dihedral(
     angles = np.empty((len(av6), 6))
     for e, (k, m) in enumerate(EDGES[::-1]):
         nk, nl = n[k], n[m]
-        theta = np.arctan2(av6 * np.sqrt(edges_sq[e]), -_soa_dot(nk, nl))
-        undefined = (_soa_sq(nk) == 0.0) | (_soa_sq(nl) == 0.0)
+        theta = np.arctan2(av6 * np.sqrt(edges_sq[e]), -soa_dot(nk, nl))
+        undefined = (soa_sq(nk) == 0.0) | (soa_sq(nl) == 0.0)
         angles[:, e] = np.where(undefined, np.nan, theta)
     return angles
 
@@ -211,8 +218,8 @@ def dihedral_angles(x: Float, cells: Int) -> Float:
     pi. The angle at an edge with a facet of zero area (a collapsed edge or collinear
     corners: the facet's plane is undefined) is ``nan``.
     """
-    p = _soa_corners(x, cells)
-    return _soa_dihedral(p, _soa_det6(p))
+    p = soa_corners(x, cells)
+    return soa_dihedral(p, soa_det6(p))
 
 
 def _mean_ratio(v6: Float, lsum: Float) -> Float:
@@ -231,8 +238,8 @@ def mean_ratio(x: Float, cells: Int) -> Float:
     flat ones. It equals ``3 det(S)^(2/3) / |S|_F^2`` of the map ``S`` from the regular
     tetrahedron (Knupp 2001).
     """
-    p = _soa_corners(x, cells)
-    return _mean_ratio(_soa_det6(p), _lsum(_soa_edges_sq(p)))
+    p = soa_corners(x, cells)
+    return _mean_ratio(soa_det6(p), _lsum(_soa_edges_sq(p)))
 
 
 def _lsum(edges_sq: list[Float]) -> Float:
@@ -252,8 +259,8 @@ def radius_ratio(x: Float, cells: Int) -> Float:
     + |d_3|^2 d_1 x d_2``, and ``r_in = 3 |V| / S`` (``S`` the total facet area), so the
     ratio is ``108 V^2 / (S |N|)``.
     """
-    p = _soa_corners(x, cells)
-    return _soa_radius_ratio(_soa_det6(p), _soa_normals(p), _soa_edges_sq(p))
+    p = soa_corners(x, cells)
+    return _soa_radius_ratio(soa_det6(p), _soa_normals(p), _soa_edges_sq(p))
 
 
 def _soa_radius_ratio(v6: Float, n: list[list[Float]], edges_sq: list[Float]) -> Float:
@@ -267,9 +274,9 @@ def _soa_radius_ratio(v6: Float, n: list[list[Float]], edges_sq: list[Float]) ->
     big_n = [s1 * n[1][i] + s2 * n[2][i] + s3 * n[3][i] for i in range(3)]
     area = np.zeros(len(v6))
     for nk in n:
-        area += np.sqrt(_soa_sq(nk))
+        area += np.sqrt(soa_sq(nk))
     area *= 0.5
-    den = area * np.sqrt(_soa_sq(big_n))
+    den = area * np.sqrt(soa_sq(big_n))
     with np.errstate(divide="ignore", invalid="ignore"):
         q = 3.0 * v6 * v6 / den  # 108 V^2 = 3 (6 V)^2
     return np.where(den > 0.0, q, 0.0)
@@ -498,10 +505,10 @@ def summary_and_volumes(
     flip = _orientation_flip(orientation, m)
     sign = np.where(flip, -1.0, 1.0)
     # The corners, 6 V, facet normals and edge lengths once, for all the figures.
-    p = _soa_corners(x, cells)
-    v6 = _soa_det6(p)
+    p = soa_corners(x, cells)
+    v6 = soa_det6(p)
     n, edges_sq = _soa_normals(p), _soa_edges_sq(p)
-    ang = np.degrees(_soa_dihedral(p, v6, n, edges_sq))
+    ang = np.degrees(soa_dihedral(p, v6, n, edges_sq))
     defined = ang[np.isfinite(ang)]
     hist, _ = np.histogram(defined, bins=DIHEDRAL_BIN_EDGES)
     mr = sign * _mean_ratio(v6, _lsum(edges_sq))

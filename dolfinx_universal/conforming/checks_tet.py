@@ -12,24 +12,37 @@ shallower of the two inside vertices as on Gamma. Pure numpy on process-local ar
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, NamedTuple
 
 from mpi4py import MPI
 
 import numpy as np
 import numpy.typing as npt
+from scipy.spatial import cKDTree
 
-from dolfinx_universal.conforming.checks import TOPOLOGY_MESSAGES
-from dolfinx_universal.core.arrays import Float, Int
+from dolfinx_universal.conforming.locate import (
+    cells_near_points,
+    missing_samples_problems,
+    points_in_cells,
+    samples_in_stars,
+)
+from dolfinx_universal.conforming.messages import TOPOLOGY_MESSAGES
+from dolfinx_universal.core.arrays import Bool, Float, Int
 from dolfinx_universal.core.collective import Problem, collective_call
 
 if TYPE_CHECKING:
     from dolfinx_universal.boundaries.curves import Boundary
+    from dolfinx_universal.conforming.snap import PositiveFacets
 
 __all__ = [
+    "SurfaceContainment",
     "SurfaceParts",
     "all_outside_faces",
     "conditioning_dihedral",
+    "conditioning_problem",
+    "open_chains",
+    "sampled_parts",
+    "surface_checks",
     "surface_parts",
     "surface_topology",
 ]
@@ -76,6 +89,95 @@ def conditioning_dihedral(x: Float, facets: Int, w: Int) -> Float:
         cos = dot(u, v) / (np.sqrt(dot(u, u)) * np.sqrt(dot(v, v)))
         out = np.maximum(out, np.arccos(np.clip(cos, -1.0, 1.0)))
     return out
+
+
+def conditioning_problem(
+    xp: Float, x0: Float, phi: Float, faces: PositiveFacets
+) -> tuple[float, Problem | None]:
+    """The largest :func:`conditioning_dihedral` (radians) of the positively cut tetrahedra,
+    and the problem of those above 90 degrees (None if there are none).
+
+    Parameters
+    ----------
+    xp, x0
+        Perturbed and unperturbed vertex positions ``(num_vertices, 3)``: the angles are a
+        property of the background cells, measured at the unperturbed positions.
+    phi
+        Signed distances ``(num_vertices,)`` (not read).
+    faces
+        Positive faces of the owned positively cut tetrahedra (at least one).
+    """
+    theta = conditioning_dihedral(x0, faces.facets, faces.w)
+    bad = theta > np.pi / 2 + 1e-9  # right angles (BCC) allowed up to rounding
+    if not bad.any():
+        return float(theta.max()), None
+    text = (
+        "dihedral angle above 90 degrees at the positive face of {count} positively "
+        "cut tetrahedra near {where}: use a background mesh that is non-obtuse near "
+        "the boundary (e.g. a15_mesh or bcc_mesh)"
+    )
+    return float(theta.max()), Problem(text, xp[faces.facets[bad]].mean(axis=1), int(bad.sum()))
+
+
+def open_chains(count: Int) -> Bool:
+    """No vertex flagged ``(n,)``: the surface of positive faces is checked as a whole, by
+    :func:`surface_topology` (the triangles' counterpart flags vertices of Gamma_h without
+    two positive edges)."""
+    return np.zeros(len(count), dtype=bool)
+
+
+class SurfaceContainment:
+    """The containment check of a tetrahedron background: samples of Gamma located in the
+    stars of the vertices near Gamma, then, for the few left, in the cells near them.
+
+    Parameters
+    ----------
+    x
+        Background vertex coordinates ``(num_vertices, 3)``.
+    c2v
+        Background cells ``(num_cells, 4)``.
+    """
+
+    def __init__(self, x: Float, c2v: Int) -> None:
+        self.x, self.c2v = x, c2v
+
+    def problems(
+        self,
+        comm: MPI.Comm,
+        pts: Float,
+        phi: Float,
+        h: Float,
+        near_cells: npt.NDArray[np.int32],
+        near_cv: Int,
+        v2c: tuple[Int, Int],
+    ) -> list[Problem]:
+        """The samples ``pts`` of Gamma in no cell of any rank (collective). Only the cells
+        that can hold a sample are searched: each vertex within its size ``h`` (at least the
+        diameter of its cells) of Gamma (``|phi| <= h``), and next to a sample."""
+        x = self.x
+        near_v = np.abs(phi) <= h
+        size = float(h[near_v].max()) if near_v.any() else 0.0
+        v2c_offsets, v2c_cells = v2c
+        found, left = samples_in_stars(x, near_v, v2c_offsets, v2c_cells, self.c2v, pts, size)
+        if left.any():  # the exhaustive search, rarely needed
+            r = np.flatnonzero(left)
+            cv = near_cv[cells_near_points(x, near_cv, near_v, pts[r], size)]
+            found[r] = points_in_cells(x, cv, pts[r], size)
+        return missing_samples_problems(comm, pts, found)
+
+
+def surface_checks(
+    comm: MPI.Comm,
+    gids: npt.NDArray[np.int64],
+    xp: Float,
+    faces: PositiveFacets,
+    parts: SurfaceParts,
+    far_kept: bool,
+) -> tuple[list[Problem], int, int]:
+    """:func:`surface_topology` of the positive ``faces`` (global vertex indices ``gids``)
+    at positions ``xp`` (collective)."""
+    f = faces.facets
+    return surface_topology(comm, gids, xp[f[:, 0]], xp[f[:, 1]], xp[f[:, 2]], parts, far_kept)
 
 
 def all_outside_faces(
@@ -266,87 +368,136 @@ def _topology(data: list, parts: SurfaceParts, far_kept: bool) -> tuple[list[Pro
     """:func:`surface_topology` on the gathered faces (rank 0)."""
     g = np.concatenate([d[0] for d in data]).reshape(-1, 3).astype(np.int64)
     a, b, c = (np.concatenate([d[k] for d in data]).reshape(-1, 3) for k in (1, 2, 3))
-    nsurf = parts.num_surfaces
     messages = TOPOLOGY_MESSAGES[3]
     if len(g) == 0:
-        return (
-            [
-                Problem(
-                    messages.empty(nsurf),
-                    parts.points[:: max(1, len(parts.points) // 16)],
-                )
-            ],
-            0,
-            int(far_kept),
-        )
-    from scipy.spatial import cKDTree
-
-    problems: list[Problem] = []
+        points = parts.points[:: max(1, len(parts.points) // 16)]
+        return [Problem(messages.empty(parts.num_surfaces), points)], 0, int(far_kept)
     mid = (a + b + c) / 3.0
     nodes, inv, _, _ = _sorted_unique(g.ravel())
     f = inv.reshape(-1, 3)
-    nf, nn = len(f), len(nodes)
-    # Directed edges (i -> j) of every face; a closed oriented surface has each edge once
-    # each way.
+    edges = _face_edges(f, len(nodes))
+    problems = _open_edge_problems(edges, mid)
+    # Pieces: faces joined through shared edges (consecutive in the edges' sort order).
+    se = edges.inverse[edges.order]
+    same = np.flatnonzero(se[1:] == se[:-1])
+    face_order = edges.face_of[edges.order]
+    npieces, piece = _components(len(f), face_order[same], face_order[same + 1])
+    problems += _pinch_problems(f, edges, mid)
+    chi = _euler_characteristics(f, edges, piece, npieces)
+    main, follow = _following_problems(parts, mid, piece, npieces, chi)
+    problems += follow
+    side, pieces = _side_problems(parts, (a, b, c), mid, piece, npieces, main, far_kept)
+    problems += side
+    if not problems and pieces != parts.expected_pieces:
+        problems.append(Problem(messages.pieces(pieces, parts.expected_pieces), mid))
+    return problems, npieces, pieces
+
+
+class _FaceEdges(NamedTuple):
+    """The directed edges ``(i -> j)`` of the faces (three per face, in face order) and the
+    undirected edges they traverse."""
+
+    di: Int
+    """Start of each directed edge ``(3 nf,)``."""
+    dj: Int
+    """End of each directed edge ``(3 nf,)``."""
+    face_of: Int
+    """The face of each directed edge ``(3 nf,)``."""
+    keys: Int
+    """The undirected edges ``min * nn + max``, sorted and distinct ``(ne,)``."""
+    inverse: Int
+    """The undirected edge of each directed edge ``(3 nf,)``."""
+    traversals: Int
+    """How many directed edges traverse each undirected edge ``(ne,)``."""
+    order: Int
+    """The directed edges sorted by their undirected edge ``(3 nf,)``."""
+    balance: Float
+    """Traversals from the smaller to the larger end less those back ``(ne,)``."""
+    num_nodes: int
+    """Number of vertices ``nn``."""
+
+
+def _face_edges(f: Int, nn: int) -> _FaceEdges:
+    """The directed and undirected edges of faces ``f`` ``(nf, 3)`` on ``nn`` vertices."""
     di = f.ravel()
     dj = f[:, [1, 2, 0]].ravel()
-    face_of = np.repeat(np.arange(nf), 3)
+    face_of = np.repeat(np.arange(len(f)), 3)
     key = np.minimum(di, dj) * nn + np.maximum(di, dj)
     sign = np.where(di < dj, 1, -1)
     ukey, einv, ecount, order = _sorted_unique(key)
     balance = np.bincount(einv, sign, minlength=len(ukey))
-    bad_edge = (ecount != 2) | (balance != 0)
-    if bad_edge.any():
-        e = np.flatnonzero(bad_edge[einv])
-        problems.append(
-            Problem(
-                "the positive faces do not form a closed, consistently oriented surface at "
-                "{count} edges near {where}: the background is too coarse for the surface's "
-                "curvature or for the gap between its parts there; refine near them",
-                mid[face_of[e]],
-                int(bad_edge.sum()),
-            )
+    return _FaceEdges(di, dj, face_of, ukey, einv, ecount, order, balance, nn)
+
+
+def _open_edge_problems(edges: _FaceEdges, mid: Float) -> list[Problem]:
+    """The edges not traversed exactly once each way: a closed oriented surface has none."""
+    bad_edge = (edges.traversals != 2) | (edges.balance != 0)
+    if not bad_edge.any():
+        return []
+    e = np.flatnonzero(bad_edge[edges.inverse])
+    return [
+        Problem(
+            "the positive faces do not form a closed, consistently oriented surface at "
+            "{count} edges near {where}: the background is too coarse for the surface's "
+            "curvature or for the gap between its parts there; refine near them",
+            mid[edges.face_of[e]],
+            int(bad_edge.sum()),
         )
-    # Pieces: faces joined through shared edges (consecutive in the edges' sort order).
-    se = einv[order]
-    same = np.flatnonzero(se[1:] == se[:-1])
-    npieces, piece = _components(nf, face_of[order][same], face_of[order][same + 1])
-    # Manifold vertices: the faces around a vertex form one fan (its link is connected).
-    corner_v = f.ravel()
-    corner_face = face_of
+    ]
+
+
+def _pinch_problems(f: Int, edges: _FaceEdges, mid: Float) -> list[Problem]:
+    """The vertices where the faces around a vertex form more than one fan (its link is not
+    connected): two sheets of Gamma_h touch there."""
+    di, dj, einv, nn = edges.di, edges.dj, edges.inverse, edges.num_nodes
     # The link of vertex v: a node per edge (v, u), node 2 e + (v > u) of edge e; the face
     # (v, p, q) joins the nodes of its edges (v, p) and (q, v).
     up = di > dj  # the corner's vertex di is the larger end of its outgoing edge
-    prev = (np.arange(3 * nf).reshape(-1, 3)[:, [2, 0, 1]]).ravel()  # the edge into di
+    prev = (np.arange(3 * len(f)).reshape(-1, 3)[:, [2, 0, 1]]).ravel()  # the edge into di
     n1 = 2 * einv + up
     n2 = 2 * einv[prev] + ~up[prev]
-    nlink, llabel = _components(2 * len(ukey), n1, n2)
-    lo, hi = ukey // nn, ukey % nn
+    nlink, llabel = _components(2 * len(edges.keys), n1, n2)
+    lo, hi = edges.keys // nn, edges.keys % nn
     owner = np.column_stack([lo, hi]).ravel()  # the vertex of node 2 e + side
     comp_owner = np.zeros(nlink, dtype=np.int64)
     comp_owner[llabel] = owner
     fans = np.bincount(comp_owner, minlength=nn)
     pinched = np.flatnonzero(fans > 1)
-    if len(pinched):
-        at = np.isin(corner_v, pinched)
-        problems.append(
-            Problem(
-                "the positive faces pinch at {count} vertices near {where} (two sheets of "
-                "Gamma_h touch): a gap or thin part is not resolved there; refine near them",
-                mid[corner_face[at]],
-                len(pinched),
-            )
+    if not len(pinched):
+        return []
+    at = np.isin(f.ravel(), pinched)
+    return [
+        Problem(
+            "the positive faces pinch at {count} vertices near {where} (two sheets of "
+            "Gamma_h touch): a gap or thin part is not resolved there; refine near them",
+            mid[edges.face_of[at]],
+            len(pinched),
         )
-    # Euler characteristic and surface of each piece.
-    v_piece = np.zeros(nn, dtype=np.int64)
+    ]
+
+
+def _euler_characteristics(f: Int, edges: _FaceEdges, piece: Int, npieces: int) -> Int:
+    """The Euler characteristic ``V - E + F`` of each piece of faces ``(npieces,)``."""
+    v_piece = np.zeros(edges.num_nodes, dtype=np.int64)
     v_piece[f.ravel()] = np.repeat(piece, 3)
-    e_piece = np.zeros(len(ukey), dtype=np.int64)
-    e_piece[einv] = piece[face_of]
-    chi = (
+    e_piece = np.zeros(len(edges.keys), dtype=np.int64)
+    e_piece[edges.inverse] = piece[edges.face_of]
+    return (
         np.bincount(v_piece, minlength=npieces)
         - np.bincount(e_piece, minlength=npieces)
         + np.bincount(piece, minlength=npieces)
     )
+
+
+def _following_problems(
+    parts: SurfaceParts, mid: Float, piece: Int, npieces: int, chi: Int
+) -> tuple[Int, list[Problem]]:
+    """The surface of Gamma each piece follows (the nearest surface of most of its faces)
+    ``(npieces,)``, and the problems of pieces that join surfaces, of surfaces followed by
+    too few or too many pieces, and of pieces with the wrong Euler characteristic."""
+    messages = TOPOLOGY_MESSAGES[3]
+    nsurf, nf = parts.num_surfaces, len(piece)
+    problems: list[Problem] = []
     if nsurf == 1:  # every face follows the one surface (no tree of its samples needed)
         surface = np.zeros(nf, dtype=np.int64)
     else:
@@ -385,16 +536,30 @@ def _topology(data: list, parts: SurfaceParts, far_kept: bool) -> tuple[list[Pro
                 mid[np.isin(piece, np.flatnonzero(main == k))],
             )
         )
-    # Enclosed volume of each piece (divergence theorem, faces oriented out of the domain).
+    return main, problems
+
+
+def _side_problems(
+    parts: SurfaceParts,
+    corners: tuple[Float, Float, Float],
+    mid: Float,
+    piece: Int,
+    npieces: int,
+    main: Int,
+    far_kept: bool,
+) -> tuple[list[Problem], int]:
+    """The pieces that keep the wrong side of their surface, from their enclosed volumes
+    (divergence theorem, faces oriented out of the domain), and the number of connected
+    pieces of the kept region."""
+    a, b, c = corners
+    messages = TOPOLOGY_MESSAGES[3]
     vol = np.bincount(piece, (a * np.cross(b, c)).sum(axis=1), minlength=npieces) / 6.0
     inside = vol > 0
     wrong = inside != parts.encloses_domain[main]
-    for k in np.flatnonzero(wrong):
-        problems.append(Problem(messages.wrong_side(int(main[k])), mid[piece == k]))
-    pieces = int(inside.sum()) + int(far_kept)
-    if not problems and pieces != parts.expected_pieces:
-        problems.append(Problem(messages.pieces(pieces, parts.expected_pieces), mid))
-    return problems, npieces, pieces
+    problems = [
+        Problem(messages.wrong_side(int(main[k])), mid[piece == k]) for k in np.flatnonzero(wrong)
+    ]
+    return problems, int(inside.sum()) + int(far_kept)
 
 
 def sampled_parts(comm: MPI.Comm, boundary: Boundary, spacing: float) -> SurfaceParts:

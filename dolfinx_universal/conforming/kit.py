@@ -10,8 +10,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 from dolfinx_universal.cells.kit import CellKernels, cell_kernels
+from dolfinx_universal.conforming import checks_tet, checks_tri, snap
 from dolfinx_universal.conforming.relax_common import Relaxation
 from dolfinx_universal.conforming.relax_tet import relax_tetrahedra
 from dolfinx_universal.conforming.relax_tri import relax_triangles
@@ -25,14 +27,65 @@ class ConformingKit:
 
     cells: CellKernels
     """The cell geometry."""
+    eager_facets: bool
+    """Whether the background's facets are built when it is prepared (triangles), or at the
+    first conform (tetrahedra: DOLFINx's faces of 1e6 tetrahedra take seconds, and its first
+    ``create_submesh`` builds them anyway)."""
+    band: Callable[..., snap.Band]
+    """The cells at the band, ``(topology, c2v, band, s, num_owned_cells) -> Band``
+    (:func:`~dolfinx_universal.conforming.snap.triangle_band`,
+    :func:`~dolfinx_universal.conforming.snap.tetrahedron_band`)."""
+    perturbation_candidates: Callable[..., Any]
+    """The vertices the eta perturbation relocates (the ``candidates`` of
+    :func:`~dolfinx_universal.conforming.snap.perturb`)."""
+    conditioning: Callable[..., tuple[float, Any]]
+    """The conditioning test of the positively cut cells, ``(xp, x0, phi, facets) ->
+    (largest angle, problem or None)``."""
+    open_chains: Callable[..., Any]
+    """Vertices of Gamma_h with a wrong number of positive facets, from the counts."""
+    sample_gamma: Callable[..., Any]
+    """Samples of Gamma for the containment and Gamma_h checks, ``(comm, boundary,
+    spacing) -> samples`` with their ``points``."""
+    sample_spacing: float
+    """The spacing of those samples, in units of the smallest mesh size at Gamma."""
+    containment: Callable[..., Any]
+    """The containment check, built once per background from ``(x, c2v)``: its
+    ``problems(comm, pts, phi, h, near_cells, near_cv, v2c)``."""
+    gamma_topology: Callable[..., tuple[list, int, int]]
+    """The topology check of Gamma_h, ``(comm, gids, xp, facets, samples, far_kept) ->
+    (problems, closed parts, kept pieces)``."""
     relax: Callable[..., Relaxation]
     """The vertex relaxation, with the arguments of
     :func:`~dolfinx_universal.conforming.relax.relax_vertices`."""
 
 
 _KITS = {
-    2: ConformingKit(cells=cell_kernels(2), relax=relax_triangles),
-    3: ConformingKit(cells=cell_kernels(3), relax=relax_tetrahedra),
+    2: ConformingKit(
+        cells=cell_kernels(2),
+        eager_facets=True,
+        band=snap.triangle_band,
+        perturbation_candidates=snap.triangle_candidates,
+        conditioning=checks_tri.conditioning_problem,
+        open_chains=checks_tri.open_chains,
+        sample_gamma=checks_tri.sample_curves,
+        sample_spacing=0.25,
+        containment=checks_tri.CurveContainment,
+        gamma_topology=checks_tri.gamma_h_checks,
+        relax=relax_triangles,
+    ),
+    3: ConformingKit(
+        cells=cell_kernels(3),
+        eager_facets=False,
+        band=snap.tetrahedron_band,
+        perturbation_candidates=snap.tetrahedron_candidates,
+        conditioning=checks_tet.conditioning_problem,
+        open_chains=checks_tet.open_chains,
+        sample_gamma=checks_tet.sampled_parts,
+        sample_spacing=0.5,
+        containment=checks_tet.SurfaceContainment,
+        gamma_topology=checks_tet.surface_checks,
+        relax=relax_tetrahedra,
+    ),
 }
 
 

@@ -5,8 +5,7 @@ from __future__ import annotations
 import time
 import warnings
 from dataclasses import dataclass, field
-from functools import cached_property
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from mpi4py import MPI
 
@@ -15,47 +14,33 @@ import numpy.typing as npt
 from dolfinx import mesh as dmesh
 
 from dolfinx_universal.backgrounds.lattice_tri import GRADATION, vertex_sizes
-from dolfinx_universal.cells.kit import cell_kernels
+from dolfinx_universal.boundaries.curves import RigidMotion
 from dolfinx_universal.conforming.checks import (
-    CellLocator,
     TetMeasures,
-    cells_near_points,
     classification_problems,
     conforming_problems,
-    containment_problems,
     containment_samples,
-    gamma_h_topology,
     low_quality_cells,
-    missing_samples_problems,
-    points_in_cells,
     require_kept,
-    samples_in_stars,
     tet_measures,
 )
-from dolfinx_universal.conforming.checks_tet import (
-    SurfaceParts,
-    all_outside_faces,
-    sampled_parts,
-    surface_topology,
-)
+from dolfinx_universal.conforming.checks_tet import all_outside_faces
 from dolfinx_universal.conforming.classify import positively_cut
+from dolfinx_universal.conforming.kit import conforming_kit
 from dolfinx_universal.conforming.relax import RelaxFrame, movable_vertices, relax_vertices
 from dolfinx_universal.conforming.snap import (
     BandCells,
-    band_cells,
     classify_near,
     gamma_h,
     map_band,
     perturb,
     project_band,
     relocate,
-    scan_cells,
 )
 from dolfinx_universal.core.arrays import Bool, Float, Int, mirror_line
 from dolfinx_universal.core.collective import (
     MeshingError,
     Problem,
-    collective_call,
     raise_collective,
 )
 
@@ -195,11 +180,10 @@ def _check_background(msh: dmesh.Mesh) -> None:
             "universal meshes are planar triangle meshes or tetrahedron meshes; got a "
             f"{topo.dim}D mesh of {topo.cell_type.name} cells"
         )
-    if topo.dim == 3:
-        return
-    z = msh.geometry.x[:, 2]
-    off = msh.comm.allreduce(float(np.abs(z).max()) if len(z) else 0.0, op=MPI.MAX)
-    if msh.geometry.dim != 2 and off > 0.0:
+    # coordinates beyond the topological dimension (z of triangles) must vanish
+    z = msh.geometry.x[:, topo.dim :]
+    off = msh.comm.allreduce(float(np.abs(z).max(initial=0.0)), op=MPI.MAX)
+    if off > 0.0:
         raise ValueError(
             f"the background mesh is a triangle mesh in 3D (|z| up to {off:.3g}); universal "
             "meshes need a planar mesh: create it with 2D coordinates (gdim = 2)"
@@ -365,10 +349,10 @@ class UniversalMesh:
         eta, min_angle = float(eta), float(min_angle)
         if not 0.0 <= eta < 1.0:  # also rejects NaN
             raise ValueError(f"eta must lie in [0, 1) (0 disables the perturbation), got {eta}")
-        kernels = cell_kernels(background.topology.dim)
-        if not 0.0 <= min_angle < kernels.max_min_angle:
+        self._kit = kit = conforming_kit(background.topology.dim)
+        if not 0.0 <= min_angle < kit.cells.max_min_angle:
             raise ValueError(
-                f"min_angle must lie in [0, {kernels.max_min_angle:.4g}) degrees, got {min_angle}"
+                f"min_angle must lie in [0, {kit.cells.max_min_angle:.4g}) degrees, got {min_angle}"
             )
         if on_low_quality not in ("warn", "raise"):
             raise ValueError(f"on_low_quality must be 'warn' or 'raise', got {on_low_quality!r}")
@@ -381,8 +365,7 @@ class UniversalMesh:
         self.background = background
         self.eta, self.min_angle, self.on_low_quality = eta, min_angle, on_low_quality
         self.relax = bool(relax)
-        self._samples: tuple[object, float, CurveSamples] | None = None
-        self._parts: tuple[object, float, SurfaceParts] | None = None
+        self._samples: tuple[object, float, Any] | None = None
         comm = self.comm = background.comm
         topo = background.topology
         self.tdim = tdim = topo.dim
@@ -390,6 +373,7 @@ class UniversalMesh:
         self._nco = topo.index_map(tdim).size_local
         x, c2v, v2n = _local_arrays(background)
         self._x, self._c2v, self._v2n = x, c2v, v2n
+        self._containment = kit.containment(x, c2v)
         nv = len(x)
         bad = ~np.isfinite(x).all(axis=1)
         raise_collective(
@@ -418,10 +402,9 @@ class UniversalMesh:
             raise ValueError(f"alpha must lie in [(1 + h/R_r)^-1, 1] = [{alpha_min:.4g}, 1]")
         self.alpha = float(alpha)
         # the inward push of the band's inside vertices by M_h (0: snap only)
-        self._push = self.alpha if kernels.inward_push else 0.0
+        self._push = self.alpha if kit.cells.inward_push else 0.0
         self._facet_arrays: tuple[Int, Int, Int, Int] | None = None
-        self._band_locations = 0  # containment checks so far (the first needs no locator)
-        if tdim == 2:
+        if kit.eager_facets:
             self._facets()
         n2v = np.empty(len(background.geometry.x), dtype=np.int32)
         n2v[v2n] = np.arange(nv, dtype=np.int32)
@@ -431,9 +414,8 @@ class UniversalMesh:
         """Cell -> facet connectivity, facet -> cell adjacency (offsets, cells) and the
         vertices on the background's boundary (collective at the first call).
 
-        Tetrahedra: built at the first :meth:`straight_map` (DOLFINx's faces of 1e6
-        tetrahedra take seconds, and its first ``create_submesh`` builds them anyway),
-        not by the constructor. Triangles: by the constructor.
+        Built by the constructor or at the first :meth:`straight_map`, as the kit's
+        :attr:`~dolfinx_universal.conforming.kit.ConformingKit.eager_facets` says.
         """
         if self._facet_arrays is None:
             topo, tdim = self.background.topology, self.tdim
@@ -497,15 +479,12 @@ class UniversalMesh:
         s, phi, closest, normal = project_band(comm, boundary, x, s, band, self.h)
         timings["project"] = time.perf_counter() - t1
         t2 = time.perf_counter()
-        bc: BandCells | None = None
-        if self.tdim == 3:  # one scan of the cells for the band and the kept cells
-            bc = scan_cells(c2v, band, s, self._nco)
-            near_all, near_cells, near_cv = bc.cells, bc.owned, bc.cv[: bc.num_owned]
-        else:
-            near_all, near_cells = band_cells(self.background.topology, band, self._nco, c2v)
-            near_cv = c2v[near_cells]
+        kit = self._kit
+        near_all, near_cells, near_cv, bc = kit.band(
+            self.background.topology, c2v, band, s, self._nco
+        )
         xp, phi, s, num_relocated = perturb(
-            comm, imv, x, phi, s, closest, near_cv, self.eta, self.h
+            comm, imv, x, phi, s, closest, near_cv, self.eta, self.h, kit.perturbation_candidates
         )
         pe = gamma_h(imv, s, c2v, near_cells, bc)
         require_kept(comm, pe.kept[: self._nco], boundary)
@@ -568,40 +547,18 @@ class UniversalMesh:
         num_loops, num_pieces
             Loops of Gamma_h and connected pieces of the kept cells.
         """
-        comm, imv = self.comm, self._imv
+        comm, imv, kit = self.comm, self._imv, self._kit
         # One sampling of Gamma serves the containment and the Gamma_h topology checks.
-        if self.tdim == 2:
-            samples = self._curve_samples(boundary, band)
-            pts = containment_samples(samples.points)
-        else:
-            parts = self._surface_parts(boundary, band)
-            pts = containment_samples(parts.points)
+        samples = self._gamma_samples(boundary, band)
+        pts = containment_samples(samples.points)
         # Containment first: a domain leaving the background also breaks Gamma_h there, and
         # "refine" would point the wrong way.
-        if self.tdim == 2:
-            cells = near_cells.astype(np.int32)
-            if "_locator" in self.__dict__ or self._band_locations:
-                # The locator of all cells, built at the second check of this background
-                # and cached (moving domains: one per step would cost more).
-                problems = containment_problems(self._locator, pts, cells, comm)
-            else:  # the first check (a static domain): a locator of the band's cells only
-                found = CellLocator(self._x, self._c2v[cells]).contains(pts)
-                problems = missing_samples_problems(comm, pts, found)
-            self._band_locations += 1
-            raise_collective(comm, problems)
-        else:  # 3D: only the cells that can hold a sample of Gamma (each vertex within its
-            # size h, at least the diameter of its cells, of Gamma, and next to a sample)
-            near_v = np.abs(phi) <= self.h
-            size = float(self.h[near_v].max()) if near_v.any() else 0.0
-            v2c_offsets, v2c = self._v2c
-            found, left = samples_in_stars(self._x, near_v, v2c_offsets, v2c, self._c2v, pts, size)
-            if left.any():  # the exhaustive search, rarely needed
-                r = np.flatnonzero(left)
-                cv = near_cv[cells_near_points(self._x, near_cv, near_v, pts[r], size)]
-                found[r] = points_in_cells(self._x, cv, pts[r], size)
-            raise_collective(comm, missing_samples_problems(comm, pts, found))
+        raise_collective(
+            comm,
+            self._containment.problems(comm, pts, phi, self.h, near_cells, near_cv, self._v2c),
+        )
         problems, theta = classification_problems(
-            xp, s, phi, pe, self._c2v, self._c2f, self._f2c_offsets, self._f2c, imv.size_local,
+            kit, xp, s, phi, pe, self._c2v, self._c2f, self._f2c_offsets, self._f2c, imv.size_local,
             self._x,
         )  # fmt: skip
         raise_collective(comm, problems)
@@ -609,15 +566,9 @@ class UniversalMesh:
         far_kept = comm.allreduce(bool(np.any(s[self._outer_vertices] < 0)), op=MPI.LOR)
         facets = pe.facets
         gids = imv.local_to_global(facets.ravel().astype(np.int32)).reshape(facets.shape)
-        if self.tdim == 2:
-            u, v, w = pe.u, pe.v, pe.w
-            topo_problems, num_loops, num_pieces = gamma_h_topology(
-                comm, gids, xp[u], xp[v], xp[w], samples, far_kept
-            )
-        else:
-            topo_problems, num_loops, num_pieces = surface_topology(
-                comm, gids, xp[facets[:, 0]], xp[facets[:, 1]], xp[facets[:, 2]], parts, far_kept
-            )
+        topo_problems, num_loops, num_pieces = kit.gamma_topology(
+            comm, gids, xp, pe, samples, far_kept
+        )
         raise_collective(comm, topo_problems)
         return max_theta, num_loops, num_pieces
 
@@ -657,8 +608,6 @@ class UniversalMesh:
 
     def _relax_frame(self, boundary: Boundary) -> RelaxFrame | None:
         """The relaxation's frame for ``boundary`` (``None``: the world's axes)."""
-        from dolfinx_universal.boundaries.curves import RigidMotion
-
         if self.relax_frame == "world":
             return self._mirror
         parts = list(getattr(boundary, "bodies", ())) + [getattr(boundary, "container", None)]
@@ -666,27 +615,6 @@ class UniversalMesh:
             if isinstance(part, RigidMotion):  # frame coordinates (x - c - t) @ R
                 return RelaxFrame(part.rotation, part.center + part.translation)
         return None
-
-    def _surface_parts(self, boundary: Boundary, band_idx: npt.NDArray) -> SurfaceParts:
-        """Samples of the surfaces of Gamma, about a quarter of the mesh size apart (cached
-        for the last boundary)."""
-        hmin = self.comm.allreduce(
-            float(self.h[band_idx].min()) if len(band_idx) else np.inf, op=MPI.MIN
-        )
-        if not np.isfinite(hmin):
-            hmin = self.comm.allreduce(float(np.max(self.h)) if len(self.h) else 1.0, op=MPI.MAX)
-        spacing = 0.5 * hmin
-        cached = self._parts
-        if cached is not None and cached[0] is boundary and cached[1] <= spacing:
-            return cached[2]
-        parts = sampled_parts(self.comm, boundary, spacing)
-        self._parts = (boundary, spacing, parts)
-        return parts
-
-    @cached_property
-    def _locator(self) -> CellLocator:
-        """Point location in the background's local cells (built at the first use)."""
-        return CellLocator(self._x, self._c2v)
 
     def _check_quality(
         self,
@@ -705,24 +633,21 @@ class UniversalMesh:
         self._report_quality(low)
         return self.comm.allreduce(lo, op=MPI.MIN), self.comm.allreduce(hi, op=MPI.MAX)
 
-    def _curve_samples(self, boundary: Boundary, band_idx: npt.NDArray) -> CurveSamples:
-        """Dense labelled samples of Gamma, spaced well below the mesh size near it (cached
-        for the last boundary)."""
-        from dolfinx_universal.sizing.fields import curve_samples
-
+    def _gamma_samples(self, boundary: Boundary, band_idx: npt.NDArray) -> Any:
+        """Dense samples of Gamma (labelled by curve or surface), spaced well below the mesh
+        size near it (:attr:`~dolfinx_universal.conforming.kit.ConformingKit.sample_spacing`;
+        cached for the last boundary)."""
         hmin = self.comm.allreduce(
             float(self.h[band_idx].min()) if len(band_idx) else np.inf, op=MPI.MIN
         )
         if not np.isfinite(hmin):  # no vertex near Gamma (an error is reported anyway)
             hmin = float(np.max(self.h)) if len(self.h) else 1.0
             hmin = self.comm.allreduce(hmin, op=MPI.MAX)
-        spacing = 0.25 * hmin
+        spacing = self._kit.sample_spacing * hmin
         cached = self._samples
         if cached is not None and cached[0] is boundary and cached[1] <= spacing:
             return cached[2]
-        samples = collective_call(
-            self.comm, "sampling the boundary", curve_samples, boundary, spacing
-        )
+        samples = self._kit.sample_gamma(self.comm, boundary, spacing)
         self._samples = (boundary, spacing, samples)
         return samples
 
@@ -787,8 +712,7 @@ class UniversalMesh:
         tdim = self.tdim
         sub, cell_emap, vertex_emap, node_map = dmesh.create_submesh(self.background, tdim, kc)
         sub.geometry.x[:, :tdim] = sm.y[self._n2v[node_map]]
-        if tdim == 2:
-            sub.geometry.x[:, 2] = 0.0
+        sub.geometry.x[:, tdim:] = 0.0  # (z of triangles)
         stopo = sub.topology
         stopo.create_connectivity(tdim, 0)
         simv, simc = stopo.index_map(0), stopo.index_map(tdim)
