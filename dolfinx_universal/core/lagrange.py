@@ -20,6 +20,7 @@ function-space dofs dominates there); for triangles DOLFINx's is the faster, and
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import lru_cache
 from itertools import permutations
 
@@ -163,62 +164,130 @@ def lagrange_geometry(msh: dmesh.Mesh, element: fem.CoordinateElement) -> dmesh.
             "lagrange_geometry needs a degree-1 mesh of triangles or tetrahedra, got a degree-"
             f"{geometry.cmaps[0].degree} mesh of {topology.cell_name()}s"
         )
-    tdim, comm, degree = topology.dim, msh.comm, element.degree
-    cell = topology.cell_name()
-    slots, keys, entity_vertices = _layout(cell, degree)
-    c2g = geometry.dofmaps[0]
-    m = len(c2g)
-    gmap = geometry.index_map()
-    vmap = topology.index_map(0)
-    c2v = topology.connectivity(tdim, 0).array.reshape(m, tdim + 1)
-    gv = vmap.local_to_global(np.arange(vmap.size_local + vmap.num_ghosts, dtype=np.int32))
-    xg = geometry.x
-    vg = np.empty(len(gv), dtype=np.intp)  # the geometry node of each vertex
-    vg[c2v] = c2g
-    xv = np.take(xg, vg, axis=0)  # vertex coordinates (row gathers by take: 4x fancy's speed)
+    cell, degree = topology.cell_name(), element.degree
+    layout = _layout(cell, degree)
+    vertices = _Vertices.of(msh)
+    blocks = _NodeBlocks.of(topology, geometry.index_map(), layout[1])
+    node_map, ghosts = _node_map(msh.comm, blocks)
+    dofmap = _dofmap(topology, vertices, layout, blocks)
+    x = _node_coordinates(topology, geometry, vertices, layout[1], blocks)
+    start = node_map.local_range[0]  # the global node numbers (local_to_global's, directly)
+    igi = np.concatenate([np.arange(start, start + blocks.n_own, dtype=np.int64), ghosts])
+    # The geometric dimension is the width of x (DOLFINx pads the rows to 3 itself)
+    geom = dmesh.create_geometry(node_map, dofmap, element, x[:, : geometry.dim], igi)
+    cpp_mesh = _cpp.mesh.Mesh_float64(msh.comm, topology._cpp_object, geom._cpp_object)
+    # A new UFL domain for every mesh (DOLFINx ties it to the mesh); its element is shared
+    return dmesh.Mesh(cpp_mesh, ufl.Mesh(_ufl_element(cell, degree, geometry.dim)))
 
-    # Blocks of the local numbering: geometry nodes, then n_d nodes per entity of dimension
-    # d = 1 .. tdim; the owned nodes of all blocks first, then the ghosts
-    blocks = [(gmap, 1)]
-    for d in range(1, tdim + 1):
-        topology.create_entities(d)
-        topology.create_connectivity(tdim, d)
-        blocks.append((topology.index_map(d), len(keys[d - 1])))
-    own = [n * imap.size_local for imap, n in blocks]
-    ghost = [n * imap.num_ghosts for imap, n in blocks]
-    own_off = np.concatenate([[0], np.cumsum(own)]).astype(np.int64)
-    n_own = int(own_off[-1])
-    ghost_off = n_own + np.concatenate([[0], np.cumsum(ghost)]).astype(np.int64)
-    num_nodes = int(ghost_off[-1])
 
-    def first_node(k: int, i: Int) -> npt.NDArray[np.int32]:
+@dataclass(frozen=True)
+class _Vertices:
+    """The vertices of a degree-1 mesh as the node numbering needs them."""
+
+    c2v: Int
+    """Cell-vertex connectivity ``(m, tdim + 1)``."""
+    c2g: Int
+    """The cells' geometry nodes (the vertex nodes) ``(m, tdim + 1)``."""
+    gv: npt.NDArray[np.int64]
+    """Global index of each local vertex."""
+    xv: Float
+    """Coordinates of each local vertex ``(num_vertices, 3)``."""
+
+    @classmethod
+    def of(cls, msh: dmesh.Mesh) -> _Vertices:
+        topology, geometry = msh.topology, msh.geometry
+        tdim, c2g = topology.dim, geometry.dofmaps[0]
+        vmap = topology.index_map(0)
+        c2v = topology.connectivity(tdim, 0).array.reshape(len(c2g), tdim + 1)
+        gv = vmap.local_to_global(np.arange(vmap.size_local + vmap.num_ghosts, dtype=np.int32))
+        vg = np.empty(len(gv), dtype=np.intp)  # the geometry node of each vertex
+        vg[c2v] = c2g
+        # vertex coordinates (row gathers by take: 4x fancy's speed)
+        return cls(c2v, c2g, gv, np.take(geometry.x, vg, axis=0))
+
+
+@dataclass(frozen=True)
+class _NodeBlocks:
+    """Blocks of the local node numbering: the geometry nodes, then ``n_d`` nodes per entity
+    of dimension ``d = 1 .. tdim``; the owned nodes of all blocks first, then the ghosts."""
+
+    blocks: list[tuple[IndexMap, int]]
+    """Index map and nodes per entity of each block."""
+    own_off: npt.NDArray[np.int64]
+    """Start of each block's owned nodes (and the number of owned nodes, last)."""
+    ghost_off: npt.NDArray[np.int64]
+    """Start of each block's ghost nodes (and the number of nodes, last)."""
+
+    @classmethod
+    def of(cls, topology: dmesh.Topology, gmap: IndexMap, keys: tuple[Float, ...]) -> _NodeBlocks:
+        """The blocks of ``topology`` (its entities are created) with ``len(keys[d - 1])``
+        nodes per entity of dimension ``d``."""
+        tdim = topology.dim
+        blocks = [(gmap, 1)]
+        for d in range(1, tdim + 1):
+            topology.create_entities(d)
+            topology.create_connectivity(tdim, d)
+            blocks.append((topology.index_map(d), len(keys[d - 1])))
+        own = [n * imap.size_local for imap, n in blocks]
+        ghost = [n * imap.num_ghosts for imap, n in blocks]
+        own_off = np.concatenate([[0], np.cumsum(own)]).astype(np.int64)
+        ghost_off = int(own_off[-1]) + np.concatenate([[0], np.cumsum(ghost)]).astype(np.int64)
+        return cls(blocks, own_off, ghost_off)
+
+    @property
+    def n_own(self) -> int:
+        """Owned nodes."""
+        return int(self.own_off[-1])
+
+    @property
+    def num_nodes(self) -> int:
+        """Local nodes, owned and ghost."""
+        return int(self.ghost_off[-1])
+
+    def first_node(self, k: int, i: Int) -> npt.NDArray[np.int32]:
         """Local node of slot 0 of the local entities ``i`` of block ``k``."""
-        imap, n = blocks[k]
+        imap, n = self.blocks[k]
         size = imap.size_local
         out = (n * i).astype(np.int32)
-        out += own_off[k]
+        out += self.own_off[k]
         if imap.num_ghosts:
-            out += (i >= size) * np.int32(ghost_off[k] - own_off[k] - n * size)
+            out += (i >= size) * np.int32(self.ghost_off[k] - self.own_off[k] - n * size)
         return out
 
-    ghosts = np.empty(num_nodes - n_own, dtype=np.int64)
-    owners = np.empty(num_nodes - n_own, dtype=np.int32)
+
+def _node_map(comm: MPI.Comm, nb: _NodeBlocks) -> tuple[IndexMap, npt.NDArray[np.int64]]:
+    """The index map of the nodes and the global numbers of the ghost nodes (their owners'
+    numbers; collective)."""
+    n_own = nb.n_own
+    ghosts = np.empty(nb.num_nodes - n_own, dtype=np.int64)
+    owners = np.empty(nb.num_nodes - n_own, dtype=np.int32)
     if comm.size > 1:  # the owners' numbers of the ghost nodes
         sizes = np.array(comm.allgather(n_own), dtype=np.int64)
         new_start = np.concatenate([[0], np.cumsum(sizes)[:-1]])
-        offsets = np.array(comm.allgather(own_off[:-1].tolist()), dtype=np.int64)
-        for k, (imap, n) in enumerate(blocks):
-            s = slice(ghost_off[k] - n_own, ghost_off[k + 1] - n_own)
+        offsets = np.array(comm.allgather(nb.own_off[:-1].tolist()), dtype=np.int64)
+        for k, (imap, n) in enumerate(nb.blocks):
+            s = slice(nb.ghost_off[k] - n_own, nb.ghost_off[k + 1] - n_own)
             ghosts[s] = _ghost_globals(comm, imap, n, new_start, offsets[:, k])
             owners[s] = np.repeat(imap.owners, n)
-    node_map = IndexMap(comm, n_own, ghosts, owners, _NBX_TAG)
+    return IndexMap(comm, n_own, ghosts, owners, _NBX_TAG), ghosts
 
-    # The dofmap: vertex nodes, then each entity's nodes at the slots of the cell's order
+
+def _dofmap(
+    topology: dmesh.Topology,
+    vertices: _Vertices,
+    layout: tuple[Int, tuple[Float, ...], tuple[Int, ...]],
+    nb: _NodeBlocks,
+) -> npt.NDArray[np.int32]:
+    """The dofmap: vertex nodes, then each entity's nodes at the slots of the cell's order
+    (:func:`_layout`), ``(m, ndofs)``."""
+    slots, keys, entity_vertices = layout
+    tdim, c2v, c2g = topology.dim, vertices.c2v, vertices.c2g
+    m = len(c2g)
     dofmap = np.empty((m, tdim + 1 + slots.shape[1]), dtype=np.int32)
     kernels = relax_kernels()
-    gv64 = np.ascontiguousarray(gv, dtype=np.int64)  # (the kernels')
     if kernels is not None:  # the operations below in C
         ffi, width = kernels.ffi, dofmap.shape[1]
+        gv64 = np.ascontiguousarray(vertices.gv, dtype=np.int64)
         c2v, c2g = (np.ascontiguousarray(a, dtype=np.int32) for a in (c2v, c2g))
         kernels.lib.dofmap_slots(
             m, tdim + 1, pointer(ffi, c2v, "int32_t"), pointer(ffi, gv64, "int64_t"),
@@ -226,7 +295,7 @@ def lagrange_geometry(msh: dmesh.Mesh, element: fem.CoordinateElement) -> dmesh.
             width,
         )  # fmt: skip
     else:
-        dofmap[:, tdim + 1 :] = np.take(slots, _code(np.take(gv, c2v)), axis=0)
+        dofmap[:, tdim + 1 :] = np.take(slots, _code(np.take(vertices.gv, c2v)), axis=0)
     column = 0
     for d in range(tdim + 1):
         n = 1 if d == 0 else len(keys[d - 1])
@@ -239,30 +308,45 @@ def lagrange_geometry(msh: dmesh.Mesh, element: fem.CoordinateElement) -> dmesh.
         else:
             c2e = np.arange(m, dtype=np.int32)[:, None]
         if kernels is not None:
-            size = blocks[d][0].size_local  # first_node's offsets of owned and ghost entities
+            size = nb.blocks[d][0].size_local  # first_node's offsets of owned and ghost entities
             kernels.lib.dofmap_block(
                 m, ffi.NULL if d == tdim else pointer(ffi, np.ascontiguousarray(c2e), "int32_t"),
-                c2e.shape[1], n, size, int(own_off[d]), int(ghost_off[d]) - n * size,
+                c2e.shape[1], n, size, int(nb.own_off[d]), int(nb.ghost_off[d]) - n * size,
                 pointer(ffi, dofmap, "int32_t"), width, column, int(d > 0),
             )  # fmt: skip
         elif d == 0:
-            dofmap[:, : tdim + 1] = first_node(0, c2e)
+            dofmap[:, : tdim + 1] = nb.first_node(0, c2e)
         else:
-            base = first_node(d, c2e)  # (2D adds: 3x faster than a broadcast 3D one)
+            base = nb.first_node(d, c2e)  # (2D adds: 3x faster than a broadcast 3D one)
             dofmap[:, column : column + n * c2e.shape[1]] += (
                 np.repeat(base, n, axis=1) if n > 1 else base
             )
         column += n * c2e.shape[1]
+    return dofmap
 
-    # Coordinates: each entity's nodes once, from its vertices ordered by global index
-    x = np.empty((num_nodes, 3))
-    x[:n_own][: gmap.size_local] = xg[: gmap.size_local]
+
+def _node_coordinates(
+    topology: dmesh.Topology,
+    geometry: dmesh.Geometry,
+    vertices: _Vertices,
+    keys: tuple[Float, ...],
+    nb: _NodeBlocks,
+) -> Float:
+    """Coordinates of the nodes ``(num_nodes, 3)``: the vertex nodes copied, each entity's
+    nodes once, from its vertices ordered by global index."""
+    tdim, gmap, xg = topology.dim, geometry.index_map(), geometry.x
+    own_off, ghost_off = nb.own_off, nb.ghost_off
+    x = np.empty((nb.num_nodes, 3))
+    x[: nb.n_own][: gmap.size_local] = xg[: gmap.size_local]
     x[ghost_off[0] : ghost_off[1]] = xg[gmap.size_local : gmap.size_local + gmap.num_ghosts]
+    kernels = relax_kernels()
+    gv, xv = vertices.gv, vertices.xv
+    gv64 = np.ascontiguousarray(gv, dtype=np.int64)  # (the kernels')
     for d in range(1, tdim + 1):
-        imap, n = blocks[d]
+        imap, n = nb.blocks[d]
         if not n:
             continue
-        e2v = topology.connectivity(d, 0).array.reshape(-1, d + 1) if d < tdim else c2v
+        e2v = topology.connectivity(d, 0).array.reshape(-1, d + 1) if d < tdim else vertices.c2v
         size = imap.size_local
         owned = x[own_off[d] : own_off[d + 1]]
         shared = x[ghost_off[d] : ghost_off[d + 1]]
@@ -286,14 +370,7 @@ def lagrange_geometry(msh: dmesh.Mesh, element: fem.CoordinateElement) -> dmesh.
                 value += key[k] * corners[k]
             owned[:, slot] = value[:size]
             shared[:, slot] = value[size:]
-
-    start = node_map.local_range[0]  # the global node numbers (local_to_global's, directly)
-    igi = np.concatenate([np.arange(start, start + n_own, dtype=np.int64), ghosts])
-    # The geometric dimension is the width of x (DOLFINx pads the rows to 3 itself)
-    geom = dmesh.create_geometry(node_map, dofmap, element, x[:, : geometry.dim], igi)
-    cpp_mesh = _cpp.mesh.Mesh_float64(comm, topology._cpp_object, geom._cpp_object)
-    # A new UFL domain for every mesh (DOLFINx ties it to the mesh); its element is shared
-    return dmesh.Mesh(cpp_mesh, ufl.Mesh(_ufl_element(cell, degree, geometry.dim)))
+    return x
 
 
 @lru_cache(maxsize=32)
