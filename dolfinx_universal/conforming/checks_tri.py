@@ -35,6 +35,7 @@ __all__ = [
     "conditioning_problem",
     "gamma_h_checks",
     "gamma_h_topology",
+    "no_measures",
     "open_chains",
     "sample_curves",
 ]
@@ -74,6 +75,12 @@ def open_chains(count: Int) -> Bool:
     """Vertices of Gamma_h without exactly two positive edges ``(n,)`` from their numbers of
     positive edges ``count``: Gamma_h is a set of closed simple curves where there are none."""
     return (count > 0) & (count != 2)
+
+
+def no_measures(x: Float, y: Float, moved: Bool, cells: Int) -> None:
+    """Triangles: the output checks measure the moved triangles themselves (the
+    tetrahedra's counterpart measures them once for both checks)."""
+    return None
 
 
 def sample_curves(comm: MPI.Comm, boundary: Boundary, spacing: float) -> CurveSamples:

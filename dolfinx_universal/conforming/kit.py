@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from dolfinx_universal.cells.kit import CellKernels, cell_kernels
-from dolfinx_universal.conforming import checks_tet, checks_tri, snap
+from dolfinx_universal.conforming import checks, checks_tet, checks_tri, snap
 from dolfinx_universal.conforming.relax_common import Relaxation
 from dolfinx_universal.conforming.relax_tet import relax_tetrahedra
 from dolfinx_universal.conforming.relax_tri import relax_triangles
@@ -38,6 +38,10 @@ class ConformingKit:
     perturbation_candidates: Callable[..., Any]
     """The vertices the eta perturbation relocates (the ``candidates`` of
     :func:`~dolfinx_universal.conforming.snap.perturb`)."""
+    repair: Callable[..., tuple[snap.PositiveFacets, int]]
+    """The repair of Gamma_h after the perturbation, with the arguments of
+    :func:`~dolfinx_universal.conforming.snap.tetrahedron_repair` (tetrahedra: the interior
+    faces with three vertices outside; triangles: none)."""
     conditioning: Callable[..., tuple[float, Any]]
     """The conditioning test of the positively cut cells, ``(xp, x0, phi, facets) ->
     (largest angle, problem or None)``."""
@@ -54,6 +58,10 @@ class ConformingKit:
     gamma_topology: Callable[..., tuple[list, int, int]]
     """The topology check of Gamma_h, ``(comm, gids, xp, facets, samples, far_kept) ->
     (problems, closed parts, kept pieces)``."""
+    measures: Callable[..., checks.TetMeasures | None]
+    """What the output checks measure of the moved cells, computed once for the inversion
+    and quality checks, ``(x, y, moved, cells)``
+    (:func:`~dolfinx_universal.conforming.checks.tet_measures`; None for triangles)."""
     relax: Callable[..., Relaxation]
     """The vertex relaxation, with the arguments of
     :func:`~dolfinx_universal.conforming.relax.relax_vertices`."""
@@ -65,12 +73,14 @@ _KITS = {
         eager_facets=True,
         band=snap.triangle_band,
         perturbation_candidates=snap.triangle_candidates,
+        repair=snap.triangle_repair,
         conditioning=checks_tri.conditioning_problem,
         open_chains=checks_tri.open_chains,
         sample_gamma=checks_tri.sample_curves,
         sample_spacing=0.25,
         containment=checks_tri.CurveContainment,
         gamma_topology=checks_tri.gamma_h_checks,
+        measures=checks_tri.no_measures,
         relax=relax_triangles,
     ),
     3: ConformingKit(
@@ -78,12 +88,14 @@ _KITS = {
         eager_facets=False,
         band=snap.tetrahedron_band,
         perturbation_candidates=snap.tetrahedron_candidates,
+        repair=snap.tetrahedron_repair,
         conditioning=checks_tet.conditioning_problem,
         open_chains=checks_tet.open_chains,
         sample_gamma=checks_tet.sampled_parts,
         sample_spacing=0.5,
         containment=checks_tet.SurfaceContainment,
         gamma_topology=checks_tet.surface_checks,
+        measures=checks.tet_measures,
         relax=relax_tetrahedra,
     ),
 }

@@ -17,6 +17,7 @@ import numpy as np
 import numpy.typing as npt
 from dolfinx import mesh as dmesh
 
+from dolfinx_universal.conforming.checks_tet import all_outside_faces
 from dolfinx_universal.conforming.classify import (
     kept_cells,
     perturbation_candidates,
@@ -52,8 +53,10 @@ __all__ = [
     "scan_cells",
     "tetrahedron_band",
     "tetrahedron_candidates",
+    "tetrahedron_repair",
     "triangle_band",
     "triangle_candidates",
+    "triangle_repair",
 ]
 
 
@@ -546,3 +549,75 @@ def map_band(
         diff |= yb[:, k] != xb[:, k]
     moved[band] = diff
     return y, moved
+
+
+def triangle_repair(
+    comm: MPI.Comm,
+    imv: IndexMap,
+    s: Float,
+    phi: Float,
+    xp: Float,
+    closest: Float,
+    pe: PositiveFacets,
+    near: Band,
+    c2v: Int,
+    c2f: Int,
+    f2c_offsets: Int,
+    f2c: Int,
+) -> tuple[PositiveFacets, int]:
+    """Triangles need no repair of Gamma_h: ``pe`` as it is, no vertex relocated (the
+    arguments of :func:`tetrahedron_repair`)."""
+    return pe, 0
+
+
+def tetrahedron_repair(
+    comm: MPI.Comm,
+    imv: IndexMap,
+    s: Float,
+    phi: Float,
+    xp: Float,
+    closest: Float,
+    pe: PositiveFacets,
+    near: Band,
+    c2v: Int,
+    c2f: Int,
+    f2c_offsets: Int,
+    f2c: Int,
+) -> tuple[PositiveFacets, int]:
+    """Remove the interior faces with three vertices outside (collective).
+
+    The shallower inside vertex beside each such face counts as on Gamma
+    (:func:`~dolfinx_universal.conforming.checks_tet.all_outside_faces`); repeated until none
+    is left (a few rounds at most: each round relocates vertices within ``h`` of Gamma).
+    ``s``, ``phi`` and ``xp`` are updated in place.
+
+    Parameters
+    ----------
+    comm, imv
+        Communicator and vertex index map of the background.
+    s, phi, xp, closest
+        Signs, signed distances, perturbed positions and closest points of the vertices.
+    pe
+        The positive facets (:func:`gamma_h`).
+    near
+        The cells at the band (:func:`tetrahedron_band`).
+    c2v, c2f
+        Cell -> vertex and cell -> facet connectivity ``(num_cells, 4)``.
+    f2c_offsets, f2c
+        Facet -> cell adjacency list.
+
+    Returns
+    -------
+    The positive facets after the repair, and the number of vertices relocated (global).
+    """
+    total = 0
+    for _ in range(8):
+        _, verts = all_outside_faces(
+            s, phi, pe.cells, pe.facets, pe.w, c2v, c2f, f2c_offsets, f2c, pe.kept
+        )
+        moved = relocate(comm, imv, xp, phi, s, closest, verts)
+        if moved == 0:
+            break
+        total += moved
+        pe = gamma_h(imv, s, c2v, near.owned, near.scan)
+    return pe, total

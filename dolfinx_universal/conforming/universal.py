@@ -22,20 +22,16 @@ from dolfinx_universal.conforming.checks import (
     containment_samples,
     low_quality_cells,
     require_kept,
-    tet_measures,
 )
-from dolfinx_universal.conforming.checks_tet import all_outside_faces
 from dolfinx_universal.conforming.classify import positively_cut
 from dolfinx_universal.conforming.kit import conforming_kit
 from dolfinx_universal.conforming.relax import RelaxFrame, movable_vertices, relax_vertices
 from dolfinx_universal.conforming.snap import (
-    BandCells,
     classify_near,
     gamma_h,
     map_band,
     perturb,
     project_band,
-    relocate,
 )
 from dolfinx_universal.core.arrays import Bool, Float, Int, mirror_line
 from dolfinx_universal.core.collective import (
@@ -480,17 +476,18 @@ class UniversalMesh:
         timings["project"] = time.perf_counter() - t1
         t2 = time.perf_counter()
         kit = self._kit
-        near_all, near_cells, near_cv, bc = kit.band(
-            self.background.topology, c2v, band, s, self._nco
-        )
+        near = kit.band(self.background.topology, c2v, band, s, self._nco)
+        near_all, near_cells, near_cv = near.cells, near.owned, near.owned_cv
         xp, phi, s, num_relocated = perturb(
             comm, imv, x, phi, s, closest, near_cv, self.eta, self.h, kit.perturbation_candidates
         )
-        pe = gamma_h(imv, s, c2v, near_cells, bc)
+        pe = gamma_h(imv, s, c2v, near_cells, near.scan)
         require_kept(comm, pe.kept[: self._nco], boundary)
-        if bc is not None:
-            pe, repaired = self._repair_faces(s, phi, xp, closest, pe, near_cells, bc)
-            num_relocated += repaired
+        pe, repaired = kit.repair(
+            comm, imv, s, phi, xp, closest, pe, near, c2v, self._c2f, self._f2c_offsets,
+            self._f2c,
+        )  # fmt: skip
+        num_relocated += repaired
         max_theta, num_loops, num_pieces = self._check_gamma_h(
             boundary, xp, s, phi, pe, band, near_cells, near_cv
         )
@@ -498,13 +495,9 @@ class UniversalMesh:
             x, xp, phi, closest, normal, pe.on_gamma, self.h, self.R_r, self._push, band
         )
         outer = self._outer_vertices
-        # tetrahedra without relaxation: the inversion and quality checks measure the same
-        # moved cells of the same images, once
-        measures = (
-            tet_measures(x, y, moved, pe.near_kept_cv)
-            if bc is not None and not self.relax
-            else None
-        )
+        # without relaxation the inversion and quality checks measure the same moved cells
+        # of the same images: once (tetrahedra)
+        measures = None if self.relax else kit.measures(x, y, moved, pe.near_kept_cv)
         raise_collective(
             comm, conforming_problems(x, y, moved, pe.near_kept_cv, pe.in_kept, outer, measures)
         )
@@ -571,40 +564,6 @@ class UniversalMesh:
         )
         raise_collective(comm, topo_problems)
         return max_theta, num_loops, num_pieces
-
-    def _repair_faces(
-        self,
-        s: Float,
-        phi: Float,
-        xp: Float,
-        closest: Float,
-        pe: PositiveFacets,
-        near_cells: npt.NDArray[np.int32],
-        bc: BandCells,
-    ) -> tuple[PositiveFacets, int]:
-        """Tetrahedra: remove the interior faces with three vertices outside (collective).
-
-        The shallower inside vertex beside each such face counts as on Gamma
-        (:func:`~dolfinx_universal.conforming.checks_tet.all_outside_faces`); repeated until none is
-        left (a few rounds at most: each round relocates vertices within ``h`` of Gamma).
-        ``s``, ``phi`` and ``xp`` are updated in place.
-
-        Returns
-        -------
-        The positive facets after the repair, and the number of vertices relocated (global).
-        """
-        total = 0
-        for _ in range(8):
-            _, verts = all_outside_faces(
-                s, phi, pe.cells, pe.facets, pe.w, self._c2v, self._c2f, self._f2c_offsets,
-                self._f2c, pe.kept,
-            )  # fmt: skip
-            moved = relocate(self.comm, self._imv, xp, phi, s, closest, verts)
-            if moved == 0:
-                break
-            total += moved
-            pe = gamma_h(self._imv, s, self._c2v, near_cells, bc)
-        return pe, total
 
     def _relax_frame(self, boundary: Boundary) -> RelaxFrame | None:
         """The relaxation's frame for ``boundary`` (``None``: the world's axes)."""
