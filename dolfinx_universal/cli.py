@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import importlib.util
 import json
 import math
 import sys
@@ -11,20 +12,31 @@ import time
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple, NoReturn
+from typing import Any, NamedTuple, NoReturn
 
 from mpi4py import MPI
 
+import dolfinx
 import numpy as np
 import numpy.typing as npt
+from dolfinx import mesh as dmesh
+from dolfinx.io import VTXWriter, XDMFFile
 
+from dolfinx_universal import __version__
+from dolfinx_universal.backgrounds.lattice_tet import a15_mesh
+from dolfinx_universal.backgrounds.lattice_tri import equilateral_mesh
+from dolfinx_universal.boundaries.base import Boundary
+from dolfinx_universal.boundaries.curves import Circle, Ellipse, PeriodicSpline, PolarCurve
+from dolfinx_universal.boundaries.surfaces import Ellipsoid, ImplicitSurface, Sphere, Torus
+from dolfinx_universal.boundaries.topology import grid_topology
+from dolfinx_universal.conforming.quality import quality_report
+from dolfinx_universal.conforming.universal import IMMERSED, OUTER, ConformingMesh, conform
 from dolfinx_universal.core.arrays import Float
-
-if TYPE_CHECKING:
-    from dolfinx import mesh as dmesh
-
-    from dolfinx_universal.boundaries.curves import Boundary
-    from dolfinx_universal.conforming.universal import ConformingMesh
+from dolfinx_universal.core.collective import MeshingError
+from dolfinx_universal.curved.maps import MAPS, curved_mesh
+from dolfinx_universal.demo_support import versions
+from dolfinx_universal.io import tags_path, write_mesh
+from dolfinx_universal.meshing.domain import DEFAULT_MAP, default_box, mesh_domain
 
 __all__ = [
     "ArgumentError",
@@ -262,47 +274,6 @@ def _on_grid_boundary(n: int = _GRID) -> npt.NDArray[np.bool_]:
     return ((i == 0) | (i == n - 1)).any(axis=0)
 
 
-def grid_topology(inside: npt.NDArray[np.bool_]) -> tuple[int, int]:
-    """Number of components and total genus of the surface of a voxelised solid.
-
-    ``inside (n, n, n)``: the grid points in the solid, none on the grid's faces. The solid
-    is the cubical complex of these points (6-connected: edges, squares and cubes whose
-    corners are all inside); its Euler characteristic ``chi = V - E + F - C`` is half that
-    of its surface. The surface has one component per component of the solid and per
-    cavity (a 26-connected component of the outside points other than the exterior), and
-    total genus ``components - chi``.
-    """
-    from scipy import ndimage
-
-    b = np.asarray(inside, dtype=bool)
-    v = int(b.sum())
-    e = sum(int((b[s0] & b[s1]).sum()) for s0, s1 in _shifts(1))
-    f = sum(int(np.logical_and.reduce([b[s] for s in q]).sum()) for q in _shifts(2))
-    c = int(np.logical_and.reduce([b[s] for s in _shifts(3)[0]]).sum())
-    chi = v - e + f - c
-    solids = ndimage.label(b)[1]
-    outside = ndimage.label(~b, structure=np.ones((3, 3, 3)))[1]
-    components = solids + outside - 1
-    return components, components - chi
-
-
-def _shifts(k: int) -> list[tuple[tuple[slice, ...], ...]]:
-    """Index tuples of the corners of the unit squares (k = 2), edges (k = 1) or cubes (3)
-    of a 3D grid, one entry per orientation."""
-    from itertools import combinations, product
-
-    out = []
-    for axes in combinations(range(3), k):
-        corners = []
-        for offset in product((0, 1), repeat=k):
-            sl = [slice(None)] * 3
-            for a, o in zip(axes, offset):
-                sl[a] = slice(o, None if o else -1)
-            corners.append(tuple(sl))
-        out.append(tuple(corners))
-    return out
-
-
 class ImplicitFunctions(NamedTuple):
     """What :func:`implicit_functions` derives from an expression."""
 
@@ -314,10 +285,6 @@ class ImplicitFunctions(NamedTuple):
     """``[[xmin, ymin, zmin], [xmax, ymax, zmax]]`` containing the surface."""
     gradient: str
     """``"complex-step"`` or ``"finite-difference"``."""
-    components: int
-    """Components of the surface counted on the sampling grid (:func:`grid_topology`)."""
-    genus: int
-    """Total genus of the surface counted on the sampling grid."""
 
 
 def implicit_functions(
@@ -343,12 +310,13 @@ def implicit_functions(
     spacings; the box is that of the negative samples of this second grid, padded by two of
     its spacings. Parts of the solid thinner than a spacing of the first grid (1/31 of the
     cube's half-width) may be missed: give ``box`` for such shapes. The number of
-    components and the genus of the surface are counted on the last grid
-    (:func:`grid_topology`; right when the grid resolves the solid's parts and gaps).
+    components and the genus of the surface are the
+    :class:`~dolfinx_universal.boundaries.surfaces.ImplicitSurface`'s (counted on its grid
+    unless given).
 
     Returns
     -------
-    The functions, the box and the topology (:class:`ImplicitFunctions`).
+    The functions, the box and how the gradient is computed (:class:`ImplicitFunctions`).
 
     Raises
     ------
@@ -363,62 +331,95 @@ def implicit_functions(
         p = np.asarray(p, dtype=np.float64).reshape(-1, 3)
         return np.real(f(p[:, 0] - c[0], p[:, 1] - c[1], p[:, 2] - c[2])).astype(np.float64)
 
-    def sample(b: Float) -> tuple[Float, Float, float]:
-        pts, spacing = _grid(b)
-        try:
-            values = phi(pts)
-        except Exception as e:  # any error of the user's expression is an argument error
-            raise ArgumentError(f"cannot evaluate implicit expression {expr!r}: {e}") from None
-        bad = ~np.isfinite(values)
-        if bad.any():
-            q = pts[np.argmax(bad)]
-            raise ArgumentError(
-                f"implicit expression {expr!r} is not finite at ({q[0]:.4g}, {q[1]:.4g}, "
-                f"{q[2]:.4g})"
-            )
-        return pts, values, spacing
-
-    edge = _on_grid_boundary()
     if box is not None:
-        b = np.asarray(box, dtype=np.float64).reshape(2, 3)
-        if not (np.isfinite(b).all() and (b[1] > b[0]).all()):
-            raise ArgumentError(
-                f"--box must be X0 Y0 Z0 X1 Y1 Z1 with X0 < X1, Y0 < Y1, Z0 < Z1, got "
-                f"{b.ravel().tolist()}"
-            )
-        pts, values, _ = sample(b)
-        if not (values < 0).any():
-            raise ArgumentError(
-                f"implicit expression {expr!r} has no negative value on a {_GRID}^3 grid in "
-                "--box: the solid is phi < 0 (empty, or thinner than the grid: enlarge it)"
-            )
-        if (values[edge] <= 0).any():
-            q = pts[edge][np.argmin(values[edge])]
-            raise ArgumentError(
-                f"the implicit surface leaves --box near ({q[0]:.4g}, {q[1]:.4g}, "
-                f"{q[2]:.4g}) (phi <= 0 on the box's faces): enlarge the box"
-            )
+        b, pts, values = _given_box(expr, phi, box)
     else:
-        found: Float | None = None
-        for half in _HALF_WIDTHS:
-            cube = np.array([c - half, c + half])
-            pts, values, spacing = sample(cube)
-            inside = values < 0
-            if inside.any() and not inside[edge].any():
-                found = np.array([pts[inside].min(axis=0), pts[inside].max(axis=0)])
-                found += np.array([-2.0, 2.0])[:, None] * spacing
-                break
-        if found is None:
-            raise ArgumentError(
-                f"implicit expression {expr!r}: found no solid (phi < 0) strictly inside a cube "
-                f"of half-width 2^-10 to 2^10 around the center {c.tolist()}: check the sign "
-                "(negative inside) or give --box"
-            )
-        pts, values, spacing = sample(found)
-        inside = values < 0
-        b = np.array([pts[inside].min(axis=0), pts[inside].max(axis=0)])
-        b += np.array([-2.0, 2.0])[:, None] * spacing
+        b, pts, values = _found_box(expr, phi, c)
+    grad, gradient = _implicit_gradient(f, phi, c, b, pts, values)
+    return ImplicitFunctions(phi, grad, b, gradient)
 
+
+def _sample(expr: str, phi: Callable[[Float], Float], box: Float) -> tuple[Float, Float, float]:
+    """The points of the grid of :func:`_grid` over ``box``, ``phi`` there and the spacing;
+    an :class:`ArgumentError` where the expression fails or is not finite."""
+    pts, spacing = _grid(box)
+    try:
+        values = phi(pts)
+    except Exception as e:  # any error of the user's expression is an argument error
+        raise ArgumentError(f"cannot evaluate implicit expression {expr!r}: {e}") from None
+    bad = ~np.isfinite(values)
+    if bad.any():
+        q = pts[np.argmax(bad)]
+        raise ArgumentError(
+            f"implicit expression {expr!r} is not finite at ({q[0]:.4g}, {q[1]:.4g}, {q[2]:.4g})"
+        )
+    return pts, values, spacing
+
+
+def _given_box(
+    expr: str, phi: Callable[[Float], Float], box: npt.ArrayLike
+) -> tuple[Float, Float, Float]:
+    """``--box`` checked to hold the solid (``phi < 0`` at a grid point, ``phi > 0`` on its
+    faces), with the grid's points and values of ``phi``."""
+    b = np.asarray(box, dtype=np.float64).reshape(2, 3)
+    if not (np.isfinite(b).all() and (b[1] > b[0]).all()):
+        raise ArgumentError(
+            f"--box must be X0 Y0 Z0 X1 Y1 Z1 with X0 < X1, Y0 < Y1, Z0 < Z1, got "
+            f"{b.ravel().tolist()}"
+        )
+    pts, values, _ = _sample(expr, phi, b)
+    if not (values < 0).any():
+        raise ArgumentError(
+            f"implicit expression {expr!r} has no negative value on a {_GRID}^3 grid in "
+            "--box: the solid is phi < 0 (empty, or thinner than the grid: enlarge it)"
+        )
+    edge = _on_grid_boundary()
+    if (values[edge] <= 0).any():
+        q = pts[edge][np.argmin(values[edge])]
+        raise ArgumentError(
+            f"the implicit surface leaves --box near ({q[0]:.4g}, {q[1]:.4g}, "
+            f"{q[2]:.4g}) (phi <= 0 on the box's faces): enlarge the box"
+        )
+    return b, pts, values
+
+
+def _found_box(expr: str, phi: Callable[[Float], Float], c: Float) -> tuple[Float, Float, Float]:
+    """The box of the solid found on the growing (then shrinking) cubes around the centre
+    ``c`` (see :func:`implicit_functions`), with the last grid's points and values."""
+    edge = _on_grid_boundary()
+    found: Float | None = None
+    for half in _HALF_WIDTHS:
+        pts, values, spacing = _sample(expr, phi, np.array([c - half, c + half]))
+        inside = values < 0
+        if inside.any() and not inside[edge].any():
+            found = np.array([pts[inside].min(axis=0), pts[inside].max(axis=0)])
+            found += np.array([-2.0, 2.0])[:, None] * spacing
+            break
+    if found is None:
+        raise ArgumentError(
+            f"implicit expression {expr!r}: found no solid (phi < 0) strictly inside a cube "
+            f"of half-width 2^-10 to 2^10 around the center {c.tolist()}: check the sign "
+            "(negative inside) or give --box"
+        )
+    pts, values, spacing = _sample(expr, phi, found)
+    inside = values < 0
+    b = np.array([pts[inside].min(axis=0), pts[inside].max(axis=0)])
+    b += np.array([-2.0, 2.0])[:, None] * spacing
+    return b, pts, values
+
+
+def _implicit_gradient(
+    f: Callable[..., npt.NDArray],
+    phi: Callable[[Float], Float],
+    c: Float,
+    b: Float,
+    pts: Float,
+    values: Float,
+) -> tuple[Callable[[Float], Float], str]:
+    """``grad phi`` by the complex step where the expression ``f`` (of coordinates relative
+    to ``c``) takes it and it agrees with central differences at the grid points ``pts``
+    nearest the surface (``values`` of ``phi`` there), else by those differences; and which
+    (``"complex-step"`` or ``"finite-difference"``)."""
     step = _IMPLICIT_FD_STEP * float(np.max(b[1] - b[0]))
     unit = np.eye(3)
 
@@ -460,10 +461,7 @@ def implicit_functions(
                 )
     except Exception:  # not complex-safe: keep finite differences
         ok = False
-    components, genus = grid_topology((values < 0).reshape((_GRID,) * 3))
-    if ok:
-        return ImplicitFunctions(phi, grad_cs, b, "complex-step", components, genus)
-    return ImplicitFunctions(phi, grad_fd, b, "finite-difference", components, genus)
+    return (grad_cs, "complex-step") if ok else (grad_fd, "finite-difference")
 
 
 # --------------------------------------------------------------------------------------------
@@ -472,10 +470,6 @@ def implicit_functions(
 
 
 def _version() -> str:
-    import dolfinx
-
-    from dolfinx_universal import __version__
-
     return f"{__version__} (DOLFINx {dolfinx.__version__})"
 
 
@@ -616,8 +610,6 @@ def _shape_options(p: argparse.ArgumentParser) -> None:
 
 def _meshing_options(p: argparse.ArgumentParser) -> None:
     """The meshing options of :func:`build_parser`: sizes, background and method parameters."""
-    from dolfinx_universal.curved.maps import MAPS
-
     m = p.add_argument_group("meshing")
     m.add_argument(
         "--h",
@@ -711,19 +703,16 @@ def _positive(name: str, value: float | None) -> None:
         raise ArgumentError(f"{name} must be a positive number, got {value}")
 
 
+_CURVES = ("circle", "ellipse", "polar", "spline")
 _SURFACES = ("sphere", "ellipsoid", "torus", "implicit")
 
 
 def _shape_name(args: argparse.Namespace) -> str:
     """The chosen shape option, e.g. ``"circle"`` or ``"torus"``."""
-    for name in ("circle", "ellipse", "polar", "spline", *_SURFACES):
+    for name in (*_CURVES, *_SURFACES):
         if getattr(args, name, None) is not None:
             return name
     raise ArgumentError("one of the shape arguments is required")
-
-
-def _is_surface(args: argparse.Namespace) -> bool:
-    return _shape_name(args) in _SURFACES
 
 
 def _check_shape_options(args: argparse.Namespace) -> None:
@@ -745,24 +734,19 @@ def make_boundary(args: argparse.Namespace) -> tuple[Boundary, dict[str, Any]]:
     ArgumentError
         For invalid shape parameters or an unreadable spline file.
     """
-    from dolfinx_universal.boundaries.curves import (
-        Circle,
-        Ellipse,
-        PeriodicSpline,
-        PolarCurve,
-    )
-
     _check_shape_options(args)
-    dim = 3 if _is_surface(args) else 2
-    raw = [0.0] * dim if args.center is None else list(args.center)
-    if len(raw) != dim:
-        what = "X Y Z for a surface" if dim == 3 else "X Y for a curve"
-        raise ArgumentError(f"--center needs {what}, got {len(raw)} number(s)")
+    kind = _kind(args)
+    raw = [0.0] * kind.gdim if args.center is None else list(args.center)
+    if len(raw) != kind.gdim:
+        raise ArgumentError(f"--center needs {kind.center_words}, got {len(raw)} number(s)")
     center = np.asarray(raw, dtype=np.float64)
     if not np.all(np.isfinite(center)):
         raise ArgumentError(f"--center must be finite, got {raw}")
-    if dim == 3:
-        return _make_surface(args, center)
+    return kind.make(args, center)
+
+
+def _make_curve(args: argparse.Namespace, center: Float) -> tuple[Boundary, dict[str, Any]]:
+    """The curve of ``--circle``, ``--ellipse``, ``--polar`` or ``--spline``."""
     if args.circle is not None:
         _positive("--circle R", args.circle)
         desc = {"type": "circle", "radius": args.circle, "center": center.tolist()}
@@ -789,7 +773,11 @@ def make_boundary(args: argparse.Namespace) -> tuple[Boundary, dict[str, Any]]:
             "derivatives": method,
         }
         return PolarCurve(r, dr, d2r, center), desc
-    path = Path(args.spline)
+    return _read_spline(Path(args.spline))
+
+
+def _read_spline(path: Path) -> tuple[Boundary, dict[str, Any]]:
+    """The spline of ``--spline``; its warnings printed on rank 0."""
     if not path.is_file():
         why = "not a regular file" if path.exists() else "no such file"
         raise ArgumentError(f"--spline: cannot read {str(path)!r}: {why}")
@@ -808,13 +796,6 @@ def make_boundary(args: argparse.Namespace) -> tuple[Boundary, dict[str, Any]]:
 
 def _make_surface(args: argparse.Namespace, center: Float) -> tuple[Boundary, dict[str, Any]]:
     """The surface of ``--sphere``, ``--ellipsoid``, ``--torus`` or ``--implicit``."""
-    from dolfinx_universal.boundaries.surfaces import (
-        Ellipsoid,
-        ImplicitSurface,
-        Sphere,
-        Torus,
-    )
-
     c = center.tolist()
     if args.sphere is not None:
         _positive("--sphere R", args.sphere)
@@ -838,33 +819,33 @@ def _make_surface(args: argparse.Namespace, center: Float) -> tuple[Boundary, di
         axis = axis / np.sqrt(axis @ axis)
         desc = {"type": "torus", "major": major, "minor": minor, "axis": axis.tolist(), "center": c}
         return Torus(center, major, minor, axis=axis), desc
+    return _make_implicit(args, center)
+
+
+def _make_implicit(args: argparse.Namespace, center: Float) -> tuple[Boundary, dict[str, Any]]:
+    """The surface of ``--implicit``: its topology given (``--genus``, ``--components``) and
+    checked, or counted (:class:`~dolfinx_universal.boundaries.surfaces.ImplicitSurface`)."""
     for option, low in (("genus", 0), ("components", 1)):
         value = getattr(args, option)
         if value is not None and value < low:
             raise ArgumentError(f"--{option} must be >= {low}, got {value}")
     imp = implicit_functions(args.implicit, center, args.box)
-    genus = imp.genus if args.genus is None else args.genus
-    components = imp.components if args.components is None else args.components
-    if genus < 0:
-        raise ArgumentError(
-            f"--implicit: the surface's genus counted on the sampling grid is {genus}: give "
-            "--genus and --components"
-        )
     try:
         surface = ImplicitSurface(
-            imp.phi, imp.grad, imp.box, genus=genus, num_components=components
+            imp.phi, imp.grad, imp.box, genus=args.genus, num_components=args.components
         )
+        genus, components = surface.genus, surface.num_components  # counted, or checked
     except ValueError as e:
         raise ArgumentError(f"--implicit: {e}") from None
     desc = {
         "type": "implicit",
         "expression": args.implicit,
-        "center": c,
+        "center": center.tolist(),
         "bounding_box": imp.box.tolist(),
         "box_given": args.box is not None,
         "genus": genus,
         "num_components": components,
-        "topology": "given" if args.genus is not None or args.components is not None else "grid",
+        "topology": "grid" if surface.topology_counted else "given",
         "gradient": imp.gradient,
     }
     return surface, desc
@@ -896,6 +877,176 @@ def _check_numbers(args: argparse.Namespace) -> None:
 
 
 # --------------------------------------------------------------------------------------------
+# Curves and surfaces: what differs
+# --------------------------------------------------------------------------------------------
+
+
+class _Sizes(NamedTuple):
+    """The sizes of a run: the shape's bounding box, the background's box, the size asked
+    (``--h`` or its default), the margin around the shape and the size used."""
+
+    bbox: Float
+    box: Float
+    h: float
+    margin: float
+    h_used: float
+
+
+class _Curves:
+    """What the command line does for a curve: triangles on an equilateral background
+    (``--uniform``) or the graded one of ``mesh_domain``."""
+
+    gdim = 2
+    center_words = "X Y for a curve"
+    cells_note, angles_word = "", ""
+    make = staticmethod(_make_curve)
+    uniform_background = staticmethod(equilateral_mesh)
+
+    @staticmethod
+    def sizes(boundary: Boundary, bbox: Float, args: argparse.Namespace) -> _Sizes:
+        """``--h`` (default: the larger side of the box over 10, over 20 with
+        ``--uniform``), the background's box and margin; an :class:`ArgumentError` where
+        an equilateral background would have too many cells."""
+        extent = float((bbox[1] - bbox[0]).max())
+        divisor = 20.0 if args.uniform else 10.0
+        h = float(f"{extent / divisor:.3g}") if args.h is None else float(args.h)
+        margin = (args.rr + 1.0) * h if args.margin is None else float(args.margin)
+        if args.uniform or args.margin is not None:
+            box = np.array([bbox[0] - margin, bbox[1] + margin])
+        else:
+            box = default_box(boundary, h, args.rr)
+            margin = float(bbox[0, 0] - box[0, 0])
+        size = box[1] - box[0]
+        n_estimate = 2.0 * (size[0] / h + 2) * (size[1] / (h * math.sqrt(3) / 2) + 2)
+        if n_estimate > 5e7:
+            raise ArgumentError(
+                f"--h {h:.4g} would give ~{n_estimate:.3g} background cells; use a larger h"
+            )
+        return _Sizes(bbox, box, h, margin, h)
+
+    @staticmethod
+    def record(stage: str, args: argparse.Namespace) -> bool:
+        """Whether the time of a stage of ``mesh_domain`` goes into the summary."""
+        return True
+
+    @staticmethod
+    def used(comm: MPI.Comm, meshed: _Meshed, sizes: _Sizes) -> _Sizes:
+        """The sizes of the summary: those asked."""
+        return sizes
+
+    @staticmethod
+    def summary_sizes(sizes: _Sizes) -> dict[str, float]:
+        return {"h": sizes.h, "margin": sizes.margin}
+
+    @staticmethod
+    def background_name(args: argparse.Namespace, meshed: _Meshed) -> str:
+        return "equilateral" if args.uniform else "graded (mesh_domain)"
+
+    @staticmethod
+    def plot(
+        comm: MPI.Comm,
+        meshed: _Meshed,
+        path: Path,
+        shape: dict[str, Any],
+        sizes: _Sizes,
+        args: argparse.Namespace,
+        quality: dict[str, Any],
+    ) -> None:
+        """The conforming mesh drawn with the curve (matplotlib is optional: imported
+        here, where a plot is asked for)."""
+        from dolfinx_universal.plotting import plot_conforming, save
+
+        deg = f", degree {args.degree} ({args.map})" if args.degree > 1 else ""
+        title = f"universal mesh: {shape['type']}, h = {sizes.h:.3g}{deg}"
+        fig, _ = plot_conforming(None, meshed.conforming, mesh=meshed.mesh, title=title)
+        save(fig, path)
+
+
+class _Surfaces:
+    """What the command line does for a surface: tetrahedra on an A15 background
+    (``--uniform``) or the one ``mesh_domain`` chooses."""
+
+    gdim = 3
+    center_words = "X Y Z for a surface"
+    cells_note, angles_word = "tetrahedra; ", "dihedral "
+    make = staticmethod(_make_surface)
+    uniform_background = staticmethod(a15_mesh)
+
+    @staticmethod
+    def sizes(boundary: Boundary, bbox: Float, args: argparse.Namespace) -> _Sizes:
+        """``--h`` (default: the larger side of the box over 10), the background's box and
+        margin; an :class:`ArgumentError` where an A15 background would have too many
+        cells."""
+        extent = float((bbox[1] - bbox[0]).max())
+        h = float(f"{extent / 10.0:.3g}") if args.h is None else float(args.h)
+        margin = (args.rr + 1.0) * h if args.margin is None else float(args.margin)
+        box = np.array([bbox[0] - margin, bbox[1] + margin])
+        if args.uniform:
+            n_estimate = 11.5 * float(np.prod(box[1] - box[0])) / h**3  # A15: 11.5 per h^3
+            if n_estimate > 2e7:
+                raise ArgumentError(
+                    f"--h {h:.4g} would give ~{n_estimate:.3g} background cells; use a larger h"
+                )
+        return _Sizes(bbox, box, h, margin, h)
+
+    @staticmethod
+    def record(stage: str, args: argparse.Namespace) -> bool:
+        """Whether the time of a stage of ``mesh_domain`` goes into the summary."""
+        return stage != "curved" or args.degree > 1
+
+    @staticmethod
+    def used(comm: MPI.Comm, meshed: _Meshed, sizes: _Sizes) -> _Sizes:
+        """The sizes of the summary: the background's own box (collective) and the
+        certificate's smallest size."""
+        x = meshed.background.geometry.x
+        lo = np.min(x, axis=0, initial=np.inf)
+        hi = np.max(x, axis=0, initial=-np.inf)
+        comm.Allreduce(MPI.IN_PLACE, lo, op=MPI.MIN)
+        comm.Allreduce(MPI.IN_PLACE, hi, op=MPI.MAX)
+        cert = meshed.certificate
+        h_used = float(sizes.h if cert is None else cert.h_min)
+        margin = float(sizes.bbox[0, 0] - lo[0])
+        return sizes._replace(box=np.array([lo, hi]), margin=margin, h_used=h_used)
+
+    @staticmethod
+    def summary_sizes(sizes: _Sizes) -> dict[str, float]:
+        return {"h": sizes.h, "h_used": sizes.h_used, "margin": sizes.margin}
+
+    @staticmethod
+    def background_name(args: argparse.Namespace, meshed: _Meshed) -> str:
+        cert = meshed.certificate  # the background mesh_domain chose
+        return "A15 uniform (--uniform)" if cert is None else f"{cert.background} (mesh_domain)"
+
+    @staticmethod
+    def plot(
+        comm: MPI.Comm,
+        meshed: _Meshed,
+        path: Path,
+        shape: dict[str, Any],
+        sizes: _Sizes,
+        args: argparse.Namespace,
+        quality: dict[str, Any],
+    ) -> None:
+        """A clipped view and the surface of the tetrahedra (:func:`_plot_surface_mesh`)."""
+        deg = (
+            f", degree {args.degree} ({args.map}; straight cells shown)" if args.degree > 1 else ""
+        )
+        title = f"universal mesh: {shape['type']}, h = {sizes.h_used:.3g}{deg}"
+        _plot_surface_mesh(comm, meshed.conforming, path, title, float(quality["theta_min_deg"]))
+
+
+_KINDS: dict[int, type[_Curves] | type[_Surfaces]] = {2: _Curves, 3: _Surfaces}
+"""What differs between curves and surfaces, by the dimension of the space."""
+_DIMENSION = {**{name: 2 for name in _CURVES}, **{name: 3 for name in _SURFACES}}
+"""The dimension of the space of each shape option."""
+
+
+def _kind(args: argparse.Namespace) -> type[_Curves] | type[_Surfaces]:
+    """The curves' or the surfaces' way, by the shape option given."""
+    return _KINDS[_DIMENSION[_shape_name(args)]]
+
+
+# --------------------------------------------------------------------------------------------
 # Meshing and output
 # --------------------------------------------------------------------------------------------
 
@@ -917,6 +1068,19 @@ def _json_safe(value: Any) -> Any:
     return value
 
 
+class _Meshed(NamedTuple):
+    """What :func:`_mesh` returns."""
+
+    conforming: ConformingMesh
+    mesh: dmesh.Mesh
+    facet_tags: dmesh.MeshTags
+    background: dmesh.Mesh
+    certificate: Any
+    """``mesh_domain``'s certificate (None with ``--uniform``)."""
+    curved: dict[str, Any]
+    """The curved map's smallest Jacobian ratio, if curved."""
+
+
 def _mesh(
     comm: MPI.Comm,
     boundary: Boundary,
@@ -926,16 +1090,12 @@ def _mesh(
     uniform_background: Callable[[MPI.Comm, list[list[float]], float], dmesh.Mesh],
     timings: dict[str, float],
     record: Callable[[str], bool],
-) -> tuple[ConformingMesh, dmesh.Mesh, dmesh.MeshTags, dmesh.Mesh, Any, dict[str, Any]]:
+) -> _Meshed:
     """The conforming mesh of the CLI, curves and surfaces alike (collective): ``--uniform``
     conforms ``uniform_background(comm, box, h)`` (and curves it for ``--degree`` > 1), else
     :func:`mesh_domain` (its stages' times recorded where ``record(stage)``). Returns the
     conforming mesh, the final mesh and its facet tags, the background, the certificate
     (``None`` with ``--uniform``) and the curved map's smallest Jacobian ratio (if curved)."""
-    from dolfinx_universal.conforming.universal import conform
-    from dolfinx_universal.curved.maps import curved_mesh
-    from dolfinx_universal.meshing.domain import mesh_domain
-
     certificate = None
     curved_info: dict[str, Any] = {}
     t = time.perf_counter()
@@ -978,7 +1138,7 @@ def _mesh(
                 timings[stage] = seconds
         if md.curved is not None:
             curved_info["min_jacobian_ratio"] = float(md.curved.min_jacobian_ratio)
-    return cm, msh, tags, background, certificate, curved_info
+    return _Meshed(cm, msh, tags, background, certificate, curved_info)
 
 
 def _write_mesh_files(
@@ -986,17 +1146,13 @@ def _write_mesh_files(
 ) -> list[str]:
     """Write the mesh with its facet tags to ``out``: a VTKHDF checkpoint (any degree), VTX
     and, up to degree 2, XDMF (collective). Returns the names of the files written."""
-    from dolfinx import io
-
-    from dolfinx_universal.io import tags_path, write_mesh
-
     write_mesh(out / "mesh.vtkhdf", msh, tags)  # a checkpoint for any degree, with its tags
     files = ["mesh.vtkhdf", tags_path(out / "mesh.vtkhdf").name]
-    with io.VTXWriter(comm, out / "mesh.bp", msh, engine="BPFile") as vtx:
+    with VTXWriter(comm, out / "mesh.bp", msh, engine="BPFile") as vtx:
         vtx.write(0.0)
     files.append("mesh.bp")
     if degree <= 2:
-        with io.XDMFFile(comm, out / "mesh.xdmf", "w") as xdmf:
+        with XDMFFile(comm, out / "mesh.xdmf", "w") as xdmf:
             xdmf.write_mesh(msh)
             tags.name = "facet_tags"
             xdmf.write_meshtags(tags, msh.geometry)
@@ -1021,22 +1177,33 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
     MeshingError
         When the domain cannot be meshed with these parameters.
     """
-    import dolfinx
-
-    from dolfinx_universal.backgrounds.lattice_tri import equilateral_mesh
-    from dolfinx_universal.conforming.quality import quality_report
-    from dolfinx_universal.conforming.universal import IMMERSED, OUTER
-    from dolfinx_universal.core.collective import MeshingError
-    from dolfinx_universal.demo_support import versions
-    from dolfinx_universal.meshing.domain import DEFAULT_MAP, default_box
-
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
     _check_numbers(args)
     boundary, shape = make_boundary(args)
-    gdim = 3 if _is_surface(args) else 2
+    kind = _kind(args)
     if getattr(args, "map", None) is None:
-        args.map = DEFAULT_MAP[gdim]
+        args.map = DEFAULT_MAP[kind.gdim]
+    bbox = _shape_box(boundary, kind.gdim)
+    out = Path(args.out)
+    _prepare_out(comm, out)
+    plot = not args.no_plot and _have_matplotlib(comm)
+    sizes = kind.sizes(boundary, bbox, args)
+    meshed = _conform_shape(comm, boundary, shape, sizes, args, kind, timings)
+    sizes = kind.used(comm, meshed, sizes)
+    quality, files = _outputs(comm, out, meshed, shape, sizes, args, kind, plot, timings)
+    summary = _summary(comm, meshed, shape, sizes, args, kind, quality, files, timings, t_start)
+    if comm.rank == 0:
+        with open(out / "summary.json", "w") as fh:
+            json.dump(summary, fh, indent=2, allow_nan=False)
+            fh.write("\n")
+    comm.barrier()
+    return summary
+
+
+def _shape_box(boundary: Boundary, gdim: int) -> Float:
+    """The shape's bounding box ``(2, gdim)``; an :class:`ArgumentError` where it is empty or
+    so far from the origin that float64 coordinates keep too few digits to mesh it."""
     bbox = np.asarray(boundary.bounding_box(), dtype=np.float64).reshape(2, gdim)
     extent = float((bbox[1] - bbox[0]).max())
     if not (np.all(np.isfinite(bbox)) and extent > 0):
@@ -1048,146 +1215,25 @@ def run(args: argparse.Namespace, comm: MPI.Comm = MPI.COMM_WORLD) -> dict[str, 
             "coordinates would keep too few digits to mesh it; move it near the origin "
             f"(e.g. --center {' '.join(['0'] * gdim)}) and shift the mesh afterwards"
         )
-    if gdim == 3:
-        return _run_surface(args, comm, boundary, shape, bbox, t_start)
-    out = Path(args.out)
-    _prepare_out(comm, out)
-    plot = not args.no_plot and _have_matplotlib(comm)
-    divisor = 20.0 if args.uniform else 10.0
-    h = float(f"{extent / divisor:.3g}") if args.h is None else float(args.h)
-    margin = (args.rr + 1.0) * h if args.margin is None else float(args.margin)
-    if args.uniform or args.margin is not None:
-        box = np.array([bbox[0] - margin, bbox[1] + margin])
-    else:
-        box = default_box(boundary, h, args.rr)
-        margin = float(bbox[0, 0] - box[0, 0])
-    size = box[1] - box[0]
-    n_estimate = 2.0 * (size[0] / h + 2) * (size[1] / (h * math.sqrt(3) / 2) + 2)
-    if n_estimate > 5e7:
-        raise ArgumentError(
-            f"--h {h:.4g} would give ~{n_estimate:.3g} background cells; use a larger h"
-        )
-
-    try:
-        cm, msh, tags, background, certificate, curved_info = _mesh(
-            comm, boundary, h, box, args, equilateral_mesh, timings, lambda stage: True
-        )
-    except ValueError as e:  # parameter checks (collective)
-        if isinstance(e, MeshingError):
-            raise
-        raise ArgumentError(str(e)) from None
-    if cm.mesh.topology.index_map(2).size_global == 0:  # same verdict on every rank
-        raise MeshingError(
-            f"no background vertex lies inside the domain: h = {h:.4g} is too coarse for a "
-            f"shape of extent {extent:.4g}; use a smaller --h"
-        )
-    for stage, seconds in cm.timings.items():
-        timings[f"conform.{stage}"] = seconds
-
-    t = time.perf_counter()
-    quality = quality_report(cm)
-    timings["quality"] = time.perf_counter() - t
-
-    # Output files.
-    t = time.perf_counter()
-    files = _write_mesh_files(comm, out, msh, tags, args.degree)
-    timings["write"] = time.perf_counter() - t
-
-    if plot:
-        t = time.perf_counter()
-        from dolfinx_universal.plotting import plot_conforming, save
-
-        fig, _ = plot_conforming(None, cm, mesh=msh, title=_title(shape, h, args))
-        save(fig, out / "mesh.png")
-        files.append("mesh.png")
-        timings["plot"] = time.perf_counter() - t
-
-    # Global counts.
-    nfo = msh.topology.index_map(1).size_local
-    owned = tags.indices < nfo
-    facets = {
-        "immersed": comm.allreduce(int((tags.values[owned] == IMMERSED).sum())),
-        "outer": comm.allreduce(int((tags.values[owned] == OUTER).sum())),
-    }
-    n_vertices = msh.topology.index_map(0).size_global
-    timings = {k: comm.allreduce(v, op=MPI.MAX) for k, v in timings.items()}
-    timings["total"] = comm.allreduce(time.perf_counter() - t_start, op=MPI.MAX)
-    files.append("summary.json")
-    summary = {
-        "dimension": 2,
-        "shape": shape,
-        "bounding_box": bbox.tolist(),
-        "background_box": box.tolist(),
-        "h": h,
-        "margin": margin,
-        "rr": args.rr,
-        "R_r": args.rr * h,
-        "alpha": cm.alpha,
-        "eta": cm.eta,
-        "degree": args.degree,
-        "map": args.map if args.degree > 1 else None,
-        "n_background_cells": background.topology.index_map(2).size_global,
-        "n_cells": int(quality["n_cells"]),
-        "n_vertices": n_vertices,
-        "n_geometry_nodes": msh.geometry.index_map().size_global,
-        "n_relocated": cm.num_relocated,
-        "facets": {"tags": {"immersed": IMMERSED, "outer": OUTER}, "counts": facets},
-        "quality": quality,
-        **({"curved": curved_info} if curved_info else {}),
-        "background": "equilateral" if args.uniform else "graded (mesh_domain)",
-        "certificate": certificate.as_dict() if certificate is not None else None,
-        "mpi_size": comm.size,
-        "dolfinx_version": dolfinx.__version__,
-        "versions": versions(),
-        "files": files,
-        "timings_s": timings,
-    }
-    summary = _json_safe(summary)
-    summary["certificate_text"] = str(certificate) if certificate is not None else None
-    if comm.rank == 0:
-        with open(out / "summary.json", "w") as fh:
-            json.dump(summary, fh, indent=2, allow_nan=False)
-            fh.write("\n")
-    comm.barrier()
-    return summary
+    return bbox
 
 
-def _run_surface(
-    args: argparse.Namespace,
+def _conform_shape(
     comm: MPI.Comm,
-    surface: Boundary,
+    boundary: Boundary,
     shape: dict[str, Any],
-    bbox: Float,
-    t_start: float,
-) -> dict[str, Any]:
-    """:func:`run` for a surface: tetrahedra (collective)."""
-    import dolfinx
-
-    from dolfinx_universal.backgrounds.lattice_tet import a15_mesh
-    from dolfinx_universal.conforming.quality import quality_report
-    from dolfinx_universal.conforming.universal import IMMERSED, OUTER
-    from dolfinx_universal.core.collective import MeshingError
-    from dolfinx_universal.demo_support import versions
-
-    timings: dict[str, float] = {}
-    extent = float((bbox[1] - bbox[0]).max())
-    out = Path(args.out)
-    _prepare_out(comm, out)
-    plot = not args.no_plot and _have_matplotlib(comm)
-    h = float(f"{extent / 10.0:.3g}") if args.h is None else float(args.h)
-    margin = (args.rr + 1.0) * h if args.margin is None else float(args.margin)
-    box = np.array([bbox[0] - margin, bbox[1] + margin])
-    if args.uniform:
-        n_estimate = 11.5 * float(np.prod(box[1] - box[0])) / h**3  # A15: 11.5 cells per h^3
-        if n_estimate > 2e7:
-            raise ArgumentError(
-                f"--h {h:.4g} would give ~{n_estimate:.3g} background cells; use a larger h"
-            )
-
+    sizes: _Sizes,
+    args: argparse.Namespace,
+    kind: type[_Curves] | type[_Surfaces],
+    timings: dict[str, float],
+) -> _Meshed:
+    """:func:`_mesh` with its errors for the command line (collective): a parameter check
+    is an :class:`ArgumentError`; a wrong topology of an implicit surface says which
+    options give it; an empty domain asks for a smaller ``--h``."""
     try:
-        cm, msh, tags, background, certificate, curved_info = _mesh(
-            comm, surface, h, box, args, a15_mesh, timings,
-            lambda stage: stage != "curved" or args.degree > 1,
+        meshed = _mesh(
+            comm, boundary, sizes.h, sizes.box, args, kind.uniform_background, timings,
+            lambda stage: kind.record(stage, args),
         )  # fmt: skip
     except MeshingError as e:
         if shape["type"] == "implicit" and "Euler characteristic" in str(e):
@@ -1201,78 +1247,90 @@ def _run_surface(
         raise
     except ValueError as e:  # parameter checks (collective)
         raise ArgumentError(str(e)) from None
-    if msh.topology.index_map(3).size_global == 0:  # same verdict on every rank
+    cm = meshed.conforming
+    if cm.mesh.topology.index_map(cm.mesh.topology.dim).size_global == 0:  # on every rank
+        extent = float((sizes.bbox[1] - sizes.bbox[0]).max())
         raise MeshingError(
-            f"no background vertex lies inside the domain: h = {h:.4g} is too coarse for a "
-            f"shape of extent {extent:.4g}; use a smaller --h"
+            f"no background vertex lies inside the domain: h = {sizes.h:.4g} is too coarse "
+            f"for a shape of extent {extent:.4g}; use a smaller --h"
         )
     for stage, seconds in cm.timings.items():
         timings[f"conform.{stage}"] = seconds
-    x = background.geometry.x
-    lo = np.min(x, axis=0, initial=np.inf)
-    hi = np.max(x, axis=0, initial=-np.inf)
-    comm.Allreduce(MPI.IN_PLACE, lo, op=MPI.MIN)
-    comm.Allreduce(MPI.IN_PLACE, hi, op=MPI.MAX)
-    box = np.array([lo, hi])  # the background's own extent
-    h_used = float(h if certificate is None else certificate.h_min)
+    return meshed
 
+
+def _outputs(
+    comm: MPI.Comm,
+    out: Path,
+    meshed: _Meshed,
+    shape: dict[str, Any],
+    sizes: _Sizes,
+    args: argparse.Namespace,
+    kind: type[_Curves] | type[_Surfaces],
+    plot: bool,
+    timings: dict[str, float],
+) -> tuple[dict[str, Any], list[str]]:
+    """The quality report, the mesh files and the plot (collective); the report and the
+    names of the files written."""
     t = time.perf_counter()
-    quality = quality_report(cm)
+    quality = quality_report(meshed.conforming)
     timings["quality"] = time.perf_counter() - t
-
     t = time.perf_counter()
-    files = _write_mesh_files(comm, out, msh, tags, args.degree)
+    files = _write_mesh_files(comm, out, meshed.mesh, meshed.facet_tags, args.degree)
     timings["write"] = time.perf_counter() - t
-
     if plot:
         t = time.perf_counter()
-        deg = (
-            f", degree {args.degree} ({args.map}; straight cells shown)" if args.degree > 1 else ""
-        )
-        _plot_surface_mesh(
-            comm,
-            cm,
-            out / "mesh.png",
-            f"universal mesh: {shape['type']}, h = {h_used:.3g}{deg}",
-            float(quality["theta_min_deg"]),
-        )
+        kind.plot(comm, meshed, out / "mesh.png", shape, sizes, args, quality)
         files.append("mesh.png")
         timings["plot"] = time.perf_counter() - t
+    return quality, files
 
-    nfo = msh.topology.index_map(2).size_local
-    owned = tags.indices < nfo
+
+def _summary(
+    comm: MPI.Comm,
+    meshed: _Meshed,
+    shape: dict[str, Any],
+    sizes: _Sizes,
+    args: argparse.Namespace,
+    kind: type[_Curves] | type[_Surfaces],
+    quality: dict[str, Any],
+    files: list[str],
+    timings: dict[str, float],
+    t_start: float,
+) -> dict[str, Any]:
+    """The summary of a run, the same on every rank (collective)."""
+    msh, tags, background = meshed.mesh, meshed.facet_tags, meshed.background
+    owned = tags.indices < msh.topology.index_map(msh.topology.dim - 1).size_local
     facets = {
-        "immersed": comm.allreduce(int((tags.values[owned] == IMMERSED).sum())),
-        "outer": comm.allreduce(int((tags.values[owned] == OUTER).sum())),
+        name: comm.allreduce(int((tags.values[owned] == tag).sum()))
+        for name, tag in (("immersed", IMMERSED), ("outer", OUTER))
     }
     timings = {k: comm.allreduce(v, op=MPI.MAX) for k, v in timings.items()}
     timings["total"] = comm.allreduce(time.perf_counter() - t_start, op=MPI.MAX)
     files.append("summary.json")
+    certificate = meshed.certificate
+    cm = meshed.conforming
     summary = {
-        "dimension": 3,
+        "dimension": kind.gdim,
         "shape": shape,
-        "bounding_box": bbox.tolist(),
-        "background_box": box.tolist(),
-        "h": h,
-        "h_used": h_used,
-        "margin": float(bbox[0, 0] - box[0, 0]),
+        "bounding_box": sizes.bbox.tolist(),
+        "background_box": sizes.box.tolist(),
+        **kind.summary_sizes(sizes),
         "rr": args.rr,
-        "R_r": args.rr * h_used,
+        "R_r": args.rr * sizes.h_used,
         "alpha": cm.alpha,
         "eta": cm.eta,
         "degree": args.degree,
         "map": args.map if args.degree > 1 else None,
-        "n_background_cells": background.topology.index_map(3).size_global,
+        "n_background_cells": background.topology.index_map(background.topology.dim).size_global,
         "n_cells": int(quality["n_cells"]),
         "n_vertices": msh.topology.index_map(0).size_global,
         "n_geometry_nodes": msh.geometry.index_map().size_global,
         "n_relocated": cm.num_relocated,
         "facets": {"tags": {"immersed": IMMERSED, "outer": OUTER}, "counts": facets},
         "quality": quality,
-        **({"curved": curved_info} if curved_info else {}),
-        "background": "A15 uniform (--uniform)"
-        if certificate is None
-        else f"{certificate.background} (mesh_domain)",  # the one mesh_domain chose
+        **({"curved": meshed.curved} if meshed.curved else {}),
+        "background": kind.background_name(args, meshed),
         "certificate": certificate.as_dict() if certificate is not None else None,
         "mpi_size": comm.size,
         "dolfinx_version": dolfinx.__version__,
@@ -1282,17 +1340,13 @@ def _run_surface(
     }
     summary = _json_safe(summary)
     summary["certificate_text"] = str(certificate) if certificate is not None else None
-    if comm.rank == 0:
-        with open(out / "summary.json", "w") as fh:
-            json.dump(summary, fh, indent=2, allow_nan=False)
-            fh.write("\n")
-    comm.barrier()
     return summary
 
 
 def _plot_surface_mesh(comm: MPI.Comm, cm: Any, path: Path, title: str, low: float) -> None:
     """Clipped view and surface of a tetrahedral conforming mesh, coloured by quality (the
-    smallest dihedral angle of each cell, from ``low`` to the regular tetrahedron's)."""
+    smallest dihedral angle of each cell, from ``low`` to the regular tetrahedron's).
+    matplotlib is optional: imported here, where a plot is asked for."""
     from dolfinx_universal.plotting import plot_tetrahedra, save
 
     fig, axes = None, [None, None]
@@ -1329,8 +1383,6 @@ def _prepare_out(comm: MPI.Comm, out: Path) -> None:
 
 def _have_matplotlib(comm: MPI.Comm) -> bool:
     """Whether matplotlib is importable (rank 0 decides; rank 0 warns when it is not)."""
-    import importlib.util
-
     ok = comm.bcast(importlib.util.find_spec("matplotlib") is not None, root=0)
     if not ok and comm.rank == 0:
         print(
@@ -1340,12 +1392,6 @@ def _have_matplotlib(comm: MPI.Comm) -> bool:
             flush=True,
         )
     return ok
-
-
-def _title(shape: dict[str, Any], h: float, args: argparse.Namespace) -> str:
-    kind = shape["type"]
-    deg = f", degree {args.degree} ({args.map})" if args.degree > 1 else ""
-    return f"universal mesh: {kind}, h = {h:.3g}{deg}"
 
 
 def _one_line(message: str) -> str:
@@ -1366,8 +1412,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     cannot be meshed. Errors are reported as one line ``dolfinx-universal: error: ...`` on
     standard error (rank 0 only), without a traceback.
     """
-    from dolfinx_universal.core.collective import MeshingError
-
     comm = MPI.COMM_WORLD
     parser = build_parser()
 
@@ -1389,17 +1433,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     except MeshingError as e:
         return fail(str(e), 1)
     if comm.rank == 0 and not args.quiet:
-        q = summary["quality"]
-        solid = summary["dimension"] == 3
-        print(
-            f"{summary['n_cells']} cells ({'tetrahedra; ' if solid else ''}"
-            f"{q['n_positively_cut']} positively cut, "
-            f"{q['percent_unaltered']:.1f}% unaltered), {'dihedral ' if solid else ''}angles in "
-            f"[{q['theta_min_deg']:.1f}, {q['theta_max_deg']:.1f}] degrees, h = "
-            f"{summary.get('h_used', summary['h']):.4g}; wrote {', '.join(summary['files'])} "
-            f"to {args.out}",
-            flush=True,
-        )
-        if summary["certificate"] is not None:
-            print(summary["certificate_text"], flush=True)
+        _print_summary(summary, args)
     return 0
+
+
+def _print_summary(summary: dict[str, Any], args: argparse.Namespace) -> None:
+    """The one-line report of a run (and the certificate, if any)."""
+    q = summary["quality"]
+    kind = _KINDS[summary["dimension"]]
+    print(
+        f"{summary['n_cells']} cells ({kind.cells_note}"
+        f"{q['n_positively_cut']} positively cut, "
+        f"{q['percent_unaltered']:.1f}% unaltered), {kind.angles_word}angles in "
+        f"[{q['theta_min_deg']:.1f}, {q['theta_max_deg']:.1f}] degrees, h = "
+        f"{summary.get('h_used', summary['h']):.4g}; wrote {', '.join(summary['files'])} "
+        f"to {args.out}",
+        flush=True,
+    )
+    if summary["certificate"] is not None:
+        print(summary["certificate_text"], flush=True)

@@ -13,6 +13,7 @@ import pytest
 from conftest import needs_ranks
 from dolfinx import io
 
+from dolfinx_universal import ImplicitSurface
 from dolfinx_universal.cli import (
     ArgumentError,
     build_parser,
@@ -466,6 +467,14 @@ def test_surface_help(capsys):
         (["--implicit", "x**2+y**2+z**2-1", "--box", "0", "0", "0", "-1", "1", "1"], "X0 < X1"),
         (["--implicit", "x**2+y**2+z**2-1", "--genus", "-1"], "--genus must be >= 0"),
         (["--implicit", "x**2+y**2+z**2-1", "--components", "0"], "--components must be >= 1"),
+        (  # a torus declared genus 0: the surface's grid counts genus 1, before any meshing
+            ["--implicit", TORUS_EXPR, "--genus", "0", "--uniform", "--h", "0.3"],
+            "counts 1 component(s) and genus 1, but genus = 0 given",
+        ),
+        (
+            ["--implicit", TORUS_EXPR, "--components", "2"],
+            "counts 1 component(s) and genus 1, but num_components = 2 given",
+        ),
     ],
 )
 def test_bad_surface_arguments(mpi_tmp_path, capsys, args, fragment):
@@ -485,10 +494,6 @@ def test_bad_surface_arguments(mpi_tmp_path, capsys, args, fragment):
     "args, fragment",
     [
         (["--sphere", "0.05", "--uniform", "--h", "0.5"], "no background vertex lies inside"),
-        (  # a torus declared genus 0: Gamma_h's Euler characteristic says otherwise
-            ["--implicit", TORUS_EXPR, "--genus", "0", "--uniform", "--h", "0.3"],
-            "give --genus and --components",
-        ),
     ],
 )
 def test_surface_meshing_failure(mpi_tmp_path, capsys, args, fragment):
@@ -515,7 +520,8 @@ def test_implicit_functions():
     assert np.all(lo < [0.1, 0, -0.2] - semi) and np.all(hi > [0.1, 0, -0.2] + semi)
     spacing = 2.0 * semi.max() / (64 - 1)  # the second grid's
     assert np.all(hi - ([0.1, 0, -0.2] + semi) < 4 * spacing)
-    assert (imp.components, imp.genus) == (1, 0)
+    counted = ImplicitSurface(imp.phi, imp.grad, imp.box)  # the topology, as the CLI counts it
+    assert (counted.num_components, counted.genus, counted.topology_counted) == (1, 0, True)
     # not complex-safe (np.abs): fourth-order differences
     imp = implicit_functions("np.abs(x)**3 + y**2 + z**2 - 1", (0, 0, 0))
     assert imp.gradient == "finite-difference"
@@ -523,7 +529,8 @@ def test_implicit_functions():
     np.testing.assert_allclose(imp.grad(p), g, atol=1e-9)
     # a given box; a torus counted with genus 1
     imp = implicit_functions(TORUS_EXPR, (0, 0, 0), [[-2, -2, -1], [2, 2, 1]])
-    assert imp.box.tolist() == [[-2, -2, -1], [2, 2, 1]] and (imp.components, imp.genus) == (1, 1)
+    assert imp.box.tolist() == [[-2, -2, -1], [2, 2, 1]]
+    assert ImplicitSurface(imp.phi, imp.grad, imp.box).counted_topology == (1, 1)
     # a large solid far from the centre is found on the growing cubes
     imp = implicit_functions("(x - 30)**2 + y**2 + z**2 - 100", (0, 0, 0))
     assert imp.box[0, 0] < 20 < 40 < imp.box[1, 0]

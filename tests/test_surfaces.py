@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+from mpi4py import MPI
+
 import numpy as np
 import pytest
 from scipy.optimize import minimize
@@ -18,10 +20,12 @@ from dolfinx_universal import (
     Domain,
     Ellipsoid,
     ImplicitSurface,
+    MeshingError,
     RigidMotion,
     Sphere,
     Surface,
     Torus,
+    mesh_domain,
 )
 
 Float = np.ndarray
@@ -437,7 +441,7 @@ def test_torus(axis: tuple[float, float, float]) -> None:
 
 
 # ----------------------------------------------------------------------------- implicit
-def _torus_implicit(R: float, r: float, **kw: object) -> ImplicitSurface:
+def _torus_implicit(R: float, r: float, genus: int | None = 1, **kw: object) -> ImplicitSurface:
     def phi(x: Float) -> Float:
         return (np.sqrt(x[:, 0] ** 2 + x[:, 1] ** 2) - R) ** 2 + x[:, 2] ** 2 - r**2
 
@@ -447,7 +451,7 @@ def _torus_implicit(R: float, r: float, **kw: object) -> ImplicitSurface:
         return np.column_stack([f * x[:, 0], f * x[:, 1], 2 * x[:, 2]])
 
     box = [[-R - r - 0.1, -R - r - 0.1, -r - 0.1], [R + r + 0.1, R + r + 0.1, r + 0.1]]
-    return ImplicitSurface(phi, grad, box, genus=1, **kw)  # type: ignore[arg-type]
+    return ImplicitSurface(phi, grad, box, genus=genus, **kw)  # type: ignore[arg-type]
 
 
 def test_overridden_normal_is_used() -> None:
@@ -585,7 +589,9 @@ def test_implicit_ellipsoid_and_errors() -> None:
         ImplicitSurface(lambda x: (x * x).sum(axis=1) + 1, grad, [[-1] * 3, [1] * 3]).sample(10)
     with pytest.raises(ValueError, match="bounding_box"):
         ImplicitSurface(phi, grad, [[0, 0], [1, 1]])
-    assert ImplicitSurface(phi, grad, [[-1] * 3, [1] * 3], genus=2).euler_characteristic == -2
+    # a genus that disagrees with the surface's: both numbers named
+    with pytest.raises(ValueError, match=r"1 component\(s\) and genus 0, but genus = 2 given"):
+        _ = ImplicitSurface(phi, grad, E.bounding_box() * 1.1, genus=2).euler_characteristic
 
 
 # ----------------------------------------------------------------------------- motions
@@ -675,8 +681,12 @@ def test_domain_3d() -> None:
     np.testing.assert_allclose(D2.normal(x2), -D2.bodies[0].normal(x2))
 
 
-def test_implicit_two_components() -> None:
-    c1, c2, r = np.array([-0.8, 0.0, 0.1]), np.array([0.7, 0.2, -0.1]), 0.5
+_C1, _C2, _R = np.array([-0.8, 0.0, 0.1]), np.array([0.7, 0.2, -0.1]), 0.5
+
+
+def _two_balls(**kw: object) -> ImplicitSurface:
+    """Two disjoint balls of radius ``_R`` around ``_C1`` and ``_C2``."""
+    c1, c2, r = _C1, _C2, _R
 
     def phi(x: Float) -> Float:
         return (((x - c1) ** 2).sum(axis=1) - r * r) * (((x - c2) ** 2).sum(axis=1) - r * r)
@@ -685,7 +695,76 @@ def test_implicit_two_components() -> None:
         f1, f2 = ((x - c1) ** 2).sum(axis=1) - r * r, ((x - c2) ** 2).sum(axis=1) - r * r
         return 2 * (x - c1) * f2[:, None] + 2 * (x - c2) * f1[:, None]
 
-    imp = ImplicitSurface(phi, grad, [[-1.4, -0.6, -0.7], [1.3, 0.8, 0.7]], num_components=2)
+    return ImplicitSurface(phi, grad, [[-1.4, -0.6, -0.7], [1.3, 0.8, 0.7]], **kw)  # type: ignore[arg-type]
+
+
+def test_implicit_topology_counted_on_the_grid() -> None:
+    """Without ``genus`` and ``num_components`` the surface counts them on its grid (a
+    sphere: 1 component of genus 0, a torus: genus 1, two balls: 2 components), and says
+    so; numbers given are checked against the counted ones: a ``ValueError`` names both."""
+    sphere = ImplicitSurface(
+        lambda x: (x * x).sum(axis=1) - 1, lambda x: 2 * x, [[-1.1] * 3, [1.1] * 3]
+    )
+    assert (sphere.num_components, sphere.genus, sphere.euler_characteristic) == (1, 0, 2)
+    assert sphere.topology_counted and sphere.given_topology == (None, None)
+    torus = _torus_implicit(1.0, 0.35, genus=None)
+    assert (torus.num_components, torus.genus, torus.euler_characteristic) == (1, 1, 0)
+    assert torus.topology_counted and torus.counted_topology == (1, 1)
+    balls = _two_balls()
+    assert (balls.num_components, balls.genus, balls.euler_characteristic) == (2, 0, 4)
+    # given and right: kept, and recorded as given
+    given = _torus_implicit(1.0, 0.35)
+    assert given.genus == 1 and given.given_topology == (None, 1) and not given.topology_counted
+    # given and wrong: a clear error at the first use, naming what was given and counted
+    x = np.array([[1.0, 0.0, 0.5]])
+    with pytest.raises(
+        ValueError, match=r"counts 1 component\(s\) and genus 1, but genus = 0 given"
+    ):
+        _torus_implicit(1.0, 0.35, genus=0).closest_point(x)
+    with pytest.raises(
+        ValueError, match=r"counts 2 component\(s\) and genus 0, but num_components = 1 given"
+    ):
+        _ = _two_balls(num_components=1).euler_characteristic
+    with pytest.raises(ValueError, match="genus must be an integer >= 0"):
+        _torus_implicit(1.0, 0.35, genus=-1)
+
+
+def test_implicit_counted_topology_gives_the_same_mesh() -> None:
+    """Counting the genus changes nothing but where the number comes from: the mesh of a
+    surface whose genus is counted is the mesh of the same surface with the genus given."""
+    phi = lambda x: x[:, 0] ** 2 + 2 * x[:, 1] ** 2 + 3 * x[:, 2] ** 2 - 1  # noqa: E731
+    grad = lambda x: np.stack([2 * x[:, 0], 4 * x[:, 1], 6 * x[:, 2]], axis=1)  # noqa: E731
+    box = [[-1.1, -0.8, -0.7], [1.1, 0.8, 0.7]]
+    meshes = [
+        mesh_domain(MPI.COMM_WORLD, ImplicitSurface(phi, grad, box, **kw), h=0.5).mesh
+        for kw in ({"genus": 0, "num_components": 1}, {})
+    ]
+    np.testing.assert_array_equal(meshes[0].geometry.x, meshes[1].geometry.x)
+    np.testing.assert_array_equal(meshes[0].geometry.dofmaps[0], meshes[1].geometry.dofmaps[0])
+
+
+def test_implicit_grad_checked_against_phi() -> None:
+    """A ``grad`` that is not the gradient of ``phi`` (its negative, or its components
+    swapped) is a ``ValueError`` naming a point where it disagrees with the differences of
+    ``phi`` (it ended in a closest-point ``RuntimeError`` wrapped in a ``MeshingError``)."""
+    box = [[-1.1] * 3, [1.1] * 3]
+
+    def phi(x: Float) -> Float:
+        return (x * x).sum(axis=1) - 1
+
+    for grad, hint in ((lambda x: -2 * x, "the opposite way"), (lambda x: 2 * x[:, [1, 0, 2]], "")):
+        imp = ImplicitSurface(phi, grad, box)
+        np.testing.assert_array_equal(imp.sign(np.zeros((1, 3))), [-1.0])  # phi alone: fine
+        with pytest.raises(ValueError, match=r"grad disagrees with phi at \(") as info:
+            imp.closest_point(np.full((1, 3), 0.5))
+        assert hint in str(info.value) and "central differences of phi" in str(info.value)
+        with pytest.raises((ValueError, MeshingError), match="grad disagrees with phi"):
+            mesh_domain(MPI.COMM_WORLD, imp, h=0.5)
+
+
+def test_implicit_two_components() -> None:
+    c1, c2, r = _C1, _C2, _R
+    imp = _two_balls(num_components=2)
     assert imp.euler_characteristic == 4 and imp.num_components == 2
     ref = Domain(None, [Sphere(c1, r), Sphere(c2, r)])
     x = RNG.uniform([-2.5, -1.5, -1.5], [2.5, 1.5, 1.5], (3000, 3))

@@ -44,6 +44,7 @@ from dolfinx_universal.boundaries.numerics import (
     unit,
     vector,
 )
+from dolfinx_universal.boundaries.topology import grid_topology
 from dolfinx_universal.core.arrays import Bool, Float, Int, as_points, positive
 
 __all__ = ["Ellipsoid", "ImplicitSurface", "Sphere", "Surface", "Torus"]
@@ -72,6 +73,11 @@ def _dot(u: Float, v: Float) -> Float:
 
 def _dot2(u: Float, v: Float) -> Float:
     return u[:, 0] * v[:, 0] + u[:, 1] * v[:, 1]
+
+
+def _fmt(v: Float) -> str:
+    """A point or vector ``(3,)`` for messages."""
+    return "(" + ", ".join(f"{c:.6g}" for c in v) + ")"
 
 
 def _fibonacci(n: int) -> Float:
@@ -614,6 +620,13 @@ class ImplicitSurface(Surface):
     Points none of whose starts pass are retried from their own projection along the
     gradient line, then raise :class:`RuntimeError`.
 
+    Checks, when the seeds are first needed: ``grad`` against central differences of ``phi``
+    at the grid's crossings (a :class:`ValueError` naming a point where they disagree, e.g. a
+    ``grad`` of the wrong sign); the topology of Gamma (:attr:`num_components`, :attr:`genus`)
+    counted on the grid (:func:`~dolfinx_universal.boundaries.topology.grid_topology` of the
+    grid points where ``phi < 0``) against the numbers given, if any (a :class:`ValueError`
+    naming both where they differ).
+
     Parameters
     ----------
     phi, grad
@@ -621,15 +634,15 @@ class ImplicitSurface(Surface):
     bounding_box
         ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]`` containing Gamma.
     genus
-        Total genus of Gamma: :attr:`euler_characteristic` is
-        ``2 num_components - 2 genus``.
+        Total genus of Gamma (:attr:`euler_characteristic` is ``2 num_components - 2 genus``);
+        None: counted on the grid.
     min_radius_of_curvature
         The smallest radius of curvature if known; else estimated from the principal
         curvatures at the seeds (an estimate: it may exceed the true value slightly).
     hess
         Hessian of ``phi`` (optional).
     num_components
-        Number of connected components of Gamma.
+        Number of connected components of Gamma; None: counted on the grid.
     resolution
         Grid cells along the longest side of the box (at least 8).
     """
@@ -639,11 +652,11 @@ class ImplicitSurface(Surface):
         phi: ArrayFn,
         grad: ArrayFn,
         bounding_box: npt.ArrayLike,
-        genus: int = 0,
+        genus: int | None = None,
         min_radius_of_curvature: float | None = None,
         *,
         hess: ArrayFn | None = None,
-        num_components: int = 1,
+        num_components: int | None = None,
         resolution: int = 64,
     ) -> None:
         box = np.asarray(bounding_box, dtype=np.float64)
@@ -652,17 +665,21 @@ class ImplicitSurface(Surface):
                 "bounding_box must be [[xmin, ymin, zmin], [xmax, ymax, zmax]], "
                 f"got {bounding_box!r}"
             )
-        if int(genus) != genus or genus < 0:
+        if genus is not None and (int(genus) != genus or genus < 0):
             raise ValueError(f"genus must be an integer >= 0, got {genus}")
-        if int(num_components) != num_components or num_components < 1:
+        if num_components is not None and (
+            int(num_components) != num_components or num_components < 1
+        ):
             raise ValueError(f"num_components must be an integer >= 1, got {num_components}")
         if int(resolution) < 8:
             raise ValueError(f"resolution must be at least 8, got {resolution}")
         self._f, self._gradf, self._hessf = phi, grad, hess
         self._box = box
-        self.genus = int(genus)
-        self.num_components = int(num_components)
-        self.euler_characteristic = 2 * self.num_components - 2 * self.genus
+        self.given_topology = (
+            None if num_components is None else int(num_components),
+            None if genus is None else int(genus),
+        )
+        """The numbers of components and the genus as given (None where not given)."""
         self._rmin = (
             None
             if min_radius_of_curvature is None
@@ -671,6 +688,51 @@ class ImplicitSurface(Surface):
         self.resolution = int(resolution)
         self._scale = float(normd(box[1] - box[0]))
         self.fd_step = 6e-6 * self._scale
+
+    @property
+    def num_components(self) -> int:  # type: ignore[override]
+        """Number of connected components of Gamma (given, else counted on the grid)."""
+        return self._topology[0]
+
+    @property
+    def genus(self) -> int:
+        """Total genus of Gamma (given, else counted on the grid)."""
+        return self._topology[1]
+
+    @property
+    def euler_characteristic(self) -> int:  # type: ignore[override]
+        """Euler characteristic of Gamma, ``2 num_components - 2 genus``."""
+        return 2 * self.num_components - 2 * self.genus
+
+    @cached_property
+    def counted_topology(self) -> tuple[int, int]:
+        """The number of components and the total genus of Gamma counted on the grid of
+        the seeds (:func:`~dolfinx_universal.boundaries.topology.grid_topology`)."""
+        return grid_topology(self._base_grid[2] < 0)
+
+    @property
+    def topology_counted(self) -> bool:
+        """Whether :attr:`num_components` and :attr:`genus` were counted (neither given)."""
+        return self.given_topology == (None, None)
+
+    @cached_property
+    def _topology(self) -> tuple[int, int]:
+        """:attr:`num_components` and :attr:`genus`: those given, checked against those
+        counted on the grid; the counted ones where none is given."""
+        counted = self.counted_topology
+        n, g = self.given_topology
+        chosen = (counted[0] if n is None else n, counted[1] if g is None else g)
+        if chosen != counted or counted[1] < 0:
+            names = ("num_components", "genus")
+            given = [f"{k} = {v}" for k, v in zip(names, self.given_topology) if v is not None]
+            what = f"but {' and '.join(given)} given" if given else "a negative genus"
+            raise ValueError(
+                f"ImplicitSurface: the grid of {self.resolution} cells along the box counts "
+                f"{counted[0]} component(s) and genus {counted[1]}, {what}: give the "
+                "surface's numbers (or none, to use those counted), or raise resolution "
+                "where the grid misses a part of the surface or a gap"
+            )
+        return chosen
 
     # -- evaluations
     def _phi(self, y: Float) -> Float:
@@ -762,6 +824,20 @@ class ImplicitSurface(Surface):
         in the cells that the base grid shows cut ``(m, 3)``, their area weights ``(m,)``
         (``h^2 / |N|_1``: the crossings per unit area are ``|N|_1 / h^2``) and the fine
         cell size ``h``."""
+        return self._on_surface(*self._edge_crossings(refine))
+
+    def _on_surface(self, p: Float, h: float) -> tuple[Float, Float, float]:
+        """:meth:`_crossings` from the crossings ``p`` of the edges of the grid of cell size
+        ``h`` (:meth:`_edge_crossings`): moved onto Gamma, with their area weights."""
+        y, ok = self._to_surface(p)
+        y = y[ok]
+        g1 = np.abs(unit(self._g(y))).sum(axis=1)
+        return y, h * h / g1, h
+
+    def _edge_crossings(self, refine: int) -> tuple[Float, float]:
+        """Where the edges of the grid refined ``refine`` times, in the cells that the base
+        grid shows cut, change the sign of ``phi`` (linear interpolation, ``(m, 3)``), and the
+        fine cell size ``h``."""
         origin, hb, F = self._base_grid
         f = int(refine)
         P = F >= 0
@@ -793,10 +869,38 @@ class ImplicitSurface(Surface):
             p = xs[i].copy()
             p[:, a] += w * h
             pts.append(p)
-        y, ok = self._to_surface(np.concatenate(pts))
-        y = y[ok]
-        g1 = np.abs(unit(self._g(y))).sum(axis=1)
-        return y, h * h / g1, h
+        return np.concatenate(pts), h
+
+    def _check_grad(self, p: Float, h: float) -> None:
+        """Raise a :class:`ValueError` where ``grad`` disagrees with the central differences
+        of ``phi`` (relative ``1e-2``), at up to 256 of the points ``p (m, 3)`` near Gamma
+        (``h``: the grid's cell size). Points where the differences of steps ``1e-3 h`` and
+        ``2e-3 h`` disagree (``phi`` not smooth there) are left out."""
+        p = p[:: max(1, len(p) // 256)]
+        if not len(p):
+            return
+        g = self._g(p)
+        e = np.eye(3) * (1e-3 * h)
+
+        def differences(k: float) -> Float:
+            cols = [self._phi(p + k * e[j]) - self._phi(p - k * e[j]) for j in range(3)]
+            return np.column_stack(cols) / (2 * k * e[0, 0])
+
+        d1, d2 = differences(1.0), differences(2.0)
+        size = np.maximum(normd(g), normd(d1))
+        smooth = normd(d1 - d2) <= 1e-3 * normd(d1)
+        bad = np.flatnonzero(smooth & ~(normd(g - d1) <= 1e-2 * size))
+        if bad.size:
+            i = int(bad[0])
+            hint = (
+                " (the opposite way: phi < 0 inside, so grad phi points out of the solid)"
+                if (g[i] @ d1[i]) < 0
+                else ""
+            )
+            raise ValueError(
+                f"ImplicitSurface: grad disagrees with phi at {_fmt(p[i])}: grad = "
+                f"{_fmt(g[i])}, central differences of phi = {_fmt(d1[i])}{hint}"
+            )
 
     @cached_property
     def _seeds(self) -> tuple[Float, cKDTree, Int, float, float, float]:
@@ -804,7 +908,10 @@ class ImplicitSurface(Surface):
         grid cell size, the covering radius (every point of Gamma is within it of a seed)
         and the area of Gamma (the sum of the weights of the crossings of the grid refined
         once)."""
-        pts, _, h = self._crossings(1)
+        raw, h = self._edge_crossings(1)
+        self._check_grad(raw, h)
+        self._topology  # noqa: B018  (the topology given, checked against the grid's)
+        pts, _, h = self._on_surface(raw, h)
         if len(pts) < 16:
             raise ValueError("phi has too few zero crossings on the grid: raise resolution")
         tree = cKDTree(pts)
