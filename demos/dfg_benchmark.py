@@ -634,9 +634,33 @@ def figures(
         ax.loglog([r["n_dofs"] for r in adaptive], err, "^-", label="adaptive (degree 2)")
         ax.set_xlabel("degrees of freedom")
         ax.set_title(f"{key}: |error| / reference")
+        log_axis_ticks(ax)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
     save(fig, out / "convergence.png")
+
+
+def log_axis_ticks(ax) -> None:
+    """Readable ticks on ``ax``'s logarithmic axes (call it after plotting). The degrees of
+    freedom span one to two decades, where matplotlib labels the minor ticks too (2, 3, 4,
+    6 x 10^4, which overlap); there, labelled ticks at 1, 2 and 5 times the powers of ten
+    (at the powers of ten only over wider spans) and unlabelled minor ticks. The errors
+    span several decades: labels at the powers of ten only."""
+    from matplotlib import ticker
+
+    def label(value: float, _pos) -> str:
+        exponent = int(np.floor(np.log10(value) + 1e-9))
+        mantissa = round(value / 10.0**exponent)
+        power = f"10^{{{exponent}}}"
+        return f"${power}$" if mantissa == 1 else rf"${mantissa} \times {power}$"
+
+    lo, hi = ax.get_xlim()
+    subs = (1.0, 2.0, 5.0) if np.log10(hi / lo) <= 2 else (1.0,)
+    ax.xaxis.set_major_locator(ticker.LogLocator(base=10, subs=subs))
+    ax.xaxis.set_major_formatter(ticker.FuncFormatter(label))
+    ax.xaxis.set_minor_formatter(ticker.NullFormatter())
+    ax.yaxis.set_major_locator(ticker.LogLocator(base=10, numticks=8))
+    ax.yaxis.set_minor_formatter(ticker.NullFormatter())
 
 
 def relative_errors(row: dict) -> dict[str, float]:
@@ -819,7 +843,10 @@ def main(argv: Sequence[str] | None = None) -> dict:
     log(comm, f"total {time.perf_counter() - t_start:.1f} s")
     # Checks: Newton converged quadratically (it raises otherwise), and the finest degree-2
     # level meets the targets: c_D to 1e-4 and c_L to 1e-2 relative (quick mode: the loose
-    # bounds of its coarse levels, 1e-4, 3e-2 and 3e-2 with delta_p).
+    # bounds of its coarse levels, 1e-4, 3e-2 and 3e-2 with delta_p). The bounds are the
+    # benchmark's accuracy targets, met by discretisation errors of 1e-6 to 1e-3; Newton
+    # stops at a residual of 1e-11, far above its rounding (about 1e-15), so rounding moves
+    # neither the iterations nor the coefficients (beyond 1e-10) on any CPU.
     assert all(r["newton_iterations"] <= 8 for r in rows)
     finest = [r for r in rows if r["geometry_degree"] == 2][-1]
     bounds = (
@@ -827,8 +854,8 @@ def main(argv: Sequence[str] | None = None) -> dict:
     )
     for key, bound in bounds.items():
         assert abs(finest[key] - reference[key]) < bound * reference[key], (key, finest)
-    # The adaptive loop: the estimate falls from round to round, and its last round meets
-    # the same bounds.
+    # The adaptive loop: the estimate falls from round to round (by a factor of 3 or more,
+    # not a rounding-level difference), and its last round meets the same bounds.
     estimates = [r["estimate"] for r in adaptive]
     assert all(b < a for a, b in zip(estimates, estimates[1:])), estimates
     for key, bound in bounds.items():

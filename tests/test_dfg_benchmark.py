@@ -219,3 +219,30 @@ def test_dual_weighted_estimates(runs):
         for key, absolute in (("c_D", 1e-8), ("c_L", 5e-5)):
             err = (r[key] - REFERENCE[key]) / REFERENCE[key]
             assert abs(err - r[f"estimate_{key}"]) <= 0.1 * abs(err) + absolute, (key, r)
+
+
+@pytest.mark.parametrize("dofs", [(1.6e4, 1.1e5), (1.6e4, 7e5), (3e3, 3e6)])
+def test_convergence_ticks_do_not_overlap(demo, dofs):
+    """The convergence figure's tick labels on the degrees-of-freedom axis do not overlap,
+    whether the axis spans less than a decade (quick run) or several (full run)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(15, 4.5))
+    ax = fig.subplots(1, 3)[0]  # a panel of the demo's width
+    n = np.geomspace(*dofs, 5)
+    ax.loglog(n, 1e-3 * (n / n[0]) ** -1.5, "o-")
+    demo.log_axis_ticks(ax)
+    renderer = FigureCanvasAgg(fig).get_renderer()
+    fig.draw(renderer)
+    for axis in (ax.xaxis, ax.yaxis):
+        lo, hi = sorted(axis.get_view_interval())
+        boxes = [  # the labels drawn: ticks inside the view with a text
+            tick.label1.get_window_extent(renderer)
+            for tick in axis.get_major_ticks() + axis.get_minor_ticks()
+            if lo <= tick.get_loc() <= hi and tick.label1.get_text()
+        ]
+        assert len(boxes) >= 2, axis.axis_name
+        for i, a in enumerate(boxes):
+            for b in boxes[i + 1 :]:
+                assert not a.overlaps(b), (axis.axis_name, a, b)
