@@ -566,6 +566,13 @@ def figures(out, run: dict, c_eq: np.ndarray, gx: np.ndarray, gy: np.ndarray) ->
 # * In the default mode, at the end, the spring and the fluid force balance to
 #   `balance_tol`, the disc has stopped (`speed_tol`), and it stopped at the equilibrium
 #   found before the run, within twice the amplitude bound.
+#
+# Every bound comes from the run's own estimates (the error of $F_{\text{surf}}$, the
+# amplitude left by the stopping rule; the factors 3 and 2 allow for these being estimates
+# of an order of magnitude), not from observed values, and each compares quantities at the
+# level of the discretisation or of the oscillation ($10^{-4}$ and more), which rounding
+# differences between CPUs do not move. The stopping rule itself is checked at the step
+# where it stopped, so the checks hold whichever step that is.
 
 
 # +
