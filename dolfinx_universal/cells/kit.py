@@ -44,6 +44,12 @@ class CellKernels:
     dihedral angles ``(m, 6)`` of tetrahedra."""
     angle_name: str
     """The angle that measures quality in messages ("an angle", "a dihedral angle")."""
+    barycentric: Callable[[Float, Int, Float], Float]
+    """Barycentric coordinates ``(m, tdim)`` of vertices ``1 .. tdim`` of cells ``(m, tdim +
+    1)`` at points ``(m, tdim)``."""
+    locator_bin: float
+    """Side of the bins of point location, in typical cell sizes (tetrahedra: 2, at most 2
+    bins per axis for most cells, where 3 per axis would mean up to 27 entries)."""
     max_min_angle: float
     """Smallest angle (degrees) of the regular cell: the largest sensible quality floor."""
     inward_push: bool
@@ -64,6 +70,8 @@ _TRIANGLES = CellKernels(
     cell_diameters=tri.cell_diameters,
     angles=tri.interior_angles,
     angle_name="an angle",
+    barycentric=tri.barycentric,
+    locator_bin=1.0,
     max_min_angle=60.0,
     inward_push=True,
 )
@@ -79,6 +87,8 @@ _TETRAHEDRA = CellKernels(
     cell_diameters=tet.cell_diameters,
     angles=tet.dihedral_angles,
     angle_name="a dihedral angle",
+    barycentric=tet.barycentric,
+    locator_bin=2.0,
     max_min_angle=float(np.degrees(np.arccos(1.0 / 3.0))),
     inward_push=False,
 )

@@ -37,6 +37,7 @@ import numpy.typing as npt
 from dolfinx_universal.core.arrays import Float, Int
 
 __all__ = [
+    "barycentric",
     "DIHEDRAL_BIN_EDGES",
     "EDGES",
     "FACETS",
@@ -598,3 +599,20 @@ def tangent_directions(normal: Float, n: int, sweep: int) -> Float:
 def tangent_angles(n: int, sweep: int) -> Float:
     """The angles ``theta_j`` of :func:`tangent_directions` ``(n,)``."""
     return sweep * _GOLDEN_ANGLE + 2.0 * np.pi * np.arange(n) / n
+
+
+def barycentric(x: Float, cells: Int, p: Float) -> Float:
+    """Barycentric coordinates of vertices 1, 2 and 3 of tetrahedra ``cells[i]`` at points
+    ``p[i]`` ``(m, 3)`` (-inf where a tetrahedron is degenerate)."""
+    # Cramer's rule on coordinate columns (np.linalg on (k, 3, 3) is slower)
+    xt = [x[:, i] for i in range(3)]
+    av = [xt[i][cells[:, 0]] for i in range(3)]
+    e1, e2, e3 = ([xt[i][cells[:, k]] - av[i] for i in range(3)] for k in (1, 2, 3))
+    pa = [p[:, i] - av[i] for i in range(3)]
+    n1, n2, n3 = soa_cross(e2, e3), soa_cross(e3, e1), soa_cross(e1, e2)
+    det = soa_dot(e1, n1)
+    ok_det = np.abs(det) > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lam = np.column_stack([soa_dot(pa, n) / det for n in (n1, n2, n3)])
+    lam[~ok_det] = -np.inf
+    return lam

@@ -11,6 +11,7 @@ import numpy as np
 from dolfinx_universal.core.arrays import Float, Int
 
 __all__ = [
+    "barycentric",
     "cell_diameters",
     "edge_lengths",
     "interior_angles",
@@ -93,3 +94,16 @@ def triangle_measures(x: Float, cells: Int) -> tuple[Float, Float, Float]:
     p = _corner_columns(x, cells)
     e = _edges(p)
     return _angles(p, e), _lengths(e), _signed_areas(p)
+
+
+def barycentric(x: Float, cells: Int, p: Float) -> Float:
+    """Barycentric coordinates of vertices 1 and 2 of triangles ``cells[i]`` at points
+    ``p[i]`` ``(m, 2)`` (inf or nan where a triangle is degenerate)."""
+    a = x[cells[:, 0]]
+    b, e = x[cells[:, 1]] - a, x[cells[:, 2]] - a
+    q = p - a
+    det = b[:, 0] * e[:, 1] - e[:, 0] * b[:, 1]
+    l1 = q[:, 0] * e[:, 1] - e[:, 0] * q[:, 1]
+    l2 = b[:, 0] * q[:, 1] - q[:, 0] * b[:, 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.column_stack([l1 / det, l2 / det])

@@ -13,7 +13,14 @@ from dataclasses import dataclass
 from typing import Any
 
 from dolfinx_universal.cells.kit import CellKernels, cell_kernels
-from dolfinx_universal.conforming import checks, checks_tet, checks_tri, snap
+from dolfinx_universal.conforming import (
+    checks,
+    checks_tet,
+    checks_tri,
+    quality_tet,
+    quality_tri,
+    snap,
+)
 from dolfinx_universal.conforming.relax_common import Relaxation
 from dolfinx_universal.conforming.relax_tet import relax_tetrahedra
 from dolfinx_universal.conforming.relax_tri import relax_triangles
@@ -62,6 +69,10 @@ class ConformingKit:
     """What the output checks measure of the moved cells, computed once for the inversion
     and quality checks, ``(x, y, moved, cells)``
     (:func:`~dolfinx_universal.conforming.checks.tet_measures`; None for triangles)."""
+    shape_figures: Callable[..., dict[str, Any]]
+    """The quality figures of the cells in
+    :func:`~dolfinx_universal.conforming.quality.quality_report`, ``(comm, x, background_x,
+    cells, sign) -> figures`` (collective)."""
     relax: Callable[..., Relaxation]
     """The vertex relaxation, with the arguments of
     :func:`~dolfinx_universal.conforming.relax.relax_vertices`."""
@@ -81,6 +92,7 @@ _KITS = {
         containment=checks_tri.CurveContainment,
         gamma_topology=checks_tri.gamma_h_checks,
         measures=checks_tri.no_measures,
+        shape_figures=quality_tri.shape_figures,
         relax=relax_triangles,
     ),
     3: ConformingKit(
@@ -96,6 +108,7 @@ _KITS = {
         containment=checks_tet.SurfaceContainment,
         gamma_topology=checks_tet.surface_checks,
         measures=checks.tet_measures,
+        shape_figures=quality_tet.shape_figures,
         relax=relax_tetrahedra,
     ),
 }

@@ -7,7 +7,7 @@ from mpi4py import MPI
 import numpy as np
 import numpy.typing as npt
 
-from dolfinx_universal.cells.tet import soa_cross, soa_dot
+from dolfinx_universal.cells.kit import cell_kernels
 from dolfinx_universal.core.arrays import Bool, Float, Int
 from dolfinx_universal.core.collective import Problem
 
@@ -26,27 +26,8 @@ __all__ = [
 def _inside(x: Float, cells: Int, p: Float, tol: float) -> Bool:
     """Whether each point ``p[i]`` lies in the simplex ``cells[i]``: its barycentric
     coordinates all at least ``-tol`` (relative: on a facet up to rounding is inside)."""
-    d = x.shape[1]
-    if d == 2:
-        a = x[cells[:, 0]]
-        b, e = x[cells[:, 1]] - a, x[cells[:, 2]] - a
-        q = p - a
-        det = b[:, 0] * e[:, 1] - e[:, 0] * b[:, 1]
-        l1 = q[:, 0] * e[:, 1] - e[:, 0] * q[:, 1]
-        l2 = b[:, 0] * q[:, 1] - q[:, 0] * b[:, 1]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lam = np.column_stack([l1 / det, l2 / det])
-    else:  # Cramer's rule on coordinate columns (np.linalg on (k, 3, 3) is slower)
-        xt = [x[:, i] for i in range(3)]
-        av = [xt[i][cells[:, 0]] for i in range(3)]
-        e1, e2, e3 = ([xt[i][cells[:, k]] - av[i] for i in range(3)] for k in (1, 2, 3))
-        pa = [p[:, i] - av[i] for i in range(3)]
-        n1, n2, n3 = soa_cross(e2, e3), soa_cross(e3, e1), soa_cross(e1, e2)
-        det = soa_dot(e1, n1)
-        ok_det = np.abs(det) > 0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lam = np.column_stack([soa_dot(pa, n) / det for n in (n1, n2, n3)])
-        lam[~ok_det] = -np.inf
+    lam = cell_kernels(x.shape[1]).barycentric(x, cells, p)
+    d = lam.shape[1]
     rest = 1.0 - lam[:, 0]
     for k in range(1, d):
         rest = rest - lam[:, k]
@@ -197,9 +178,9 @@ class CellLocator:
         m = len(cells)
         self.origin = lo.min(axis=0) if m else np.zeros(d)
         extent = (hi - lo).max(axis=1) if m else np.ones(1)
-        # bins about the size of a typical cell (twice that in 3D): each cell spans a few
-        # bins (at most 2 per axis in 3D, where 3 per axis would mean up to 27 entries)
-        scale = 1.0 if d == 2 else 2.0
+        # bins about the size of a typical cell (twice that for tetrahedra): each cell spans
+        # a few bins
+        scale = cell_kernels(d).locator_bin
         self.g = g = scale * float(max(np.median(extent), 1e-300)) if m else 1.0
         i0 = np.floor((lo - self.origin) / g).astype(np.int64)
         i1 = np.floor((hi - self.origin) / g).astype(np.int64)
