@@ -44,11 +44,15 @@ from ufl.algorithms import extract_coefficients
 
 from dolfinx_universal.boundaries.curves import Domain
 from dolfinx_universal.core.collective import collective_call
+from dolfinx_universal.moving import rigid_tet, rigid_tri
 
 if TYPE_CHECKING:
     from dolfinx_universal.moving.domain import MovingDomain
 
 __all__ = ["DIRECT", "ITERATIVE", "ActiveForm", "MovingLinearProblem", "MovingStokes", "reassemble"]
+
+_RIGID = {2: rigid_tri, 3: rigid_tet}
+"""The rigid rotations and torques per geometric dimension."""
 
 
 def reassemble(A, b, a: fem.Form, L: fem.Form, bcs: Sequence[fem.DirichletBC]) -> None:
@@ -593,54 +597,85 @@ class MovingStokes:
         self.md, self.mu = md, mu
         msh = self.mesh = md.mesh
         d = self.gdim = msh.geometry.dim
-        fdim = msh.topology.dim - 1
-        msh.topology.create_connectivity(fdim, fdim + 1)
+        self._rigid = _RIGID[d]
+        msh.topology.create_connectivity(msh.topology.dim - 1, msh.topology.dim)
+        u_dofs, p_dofs = self._spaces()
+        self.wh = fem.Function(self.W)
+        """The solution ``(u_h, p_h)`` of the last :meth:`solve`."""
+        self.problem = self._linear_problem(
+            u_dofs,
+            p_dofs,
+            petsc_options=(ITERATIVE if preconditioner else DIRECT)
+            if petsc_options is None
+            else petsc_options,
+            petsc_options_prefix=petsc_options_prefix,
+            symmetric=symmetric,
+            preconditioner=preconditioner,
+            restrict_to_active=restrict_to_active,
+        )
+        self._fixed_conditions(wall_velocity, pressure_point)
+        self.u_body = fem.Function(self.V, name="body_velocity")
+        """The velocity on Gamma_h of the last :meth:`solve` (at every node; the walls'
+        on an immersed container)."""
+        # e_k x x at every node (2D only k = z; 3D k = x, y, z), at every step's geometry
+        self._rotations = [fem.Function(self.V) for _ in range(self._rigid.ROTATIONS)]
+        self._force_forms()
+        self.body_dofs: list[npt.NDArray[np.int32]] = [np.empty(0, np.int32)] * 2
+        """``[dofs of W, dofs of V]`` of the velocity on the bodies at the last solve."""
+
+    def _spaces(self) -> tuple[npt.NDArray[np.int32], npt.NDArray[np.int32]]:
+        """The Taylor–Hood space ``W`` and its collapsed velocity and pressure spaces ``V``,
+        ``Q``; returns the dofs of ``W`` of each."""
+        msh, d = self.mesh, self.gdim
         cell = msh.basix_cell()
         P2v = basix.ufl.element("Lagrange", cell, 2, shape=(d,))
         P1 = basix.ufl.element("Lagrange", cell, 1)
         W = self.W = fem.functionspace(msh, basix.ufl.mixed_element([P2v, P1]))
         self.V, u_dofs = W.sub(0).collapse()
         self.Q, p_dofs = W.sub(1).collapse()
-        V, Q = self.V, self.Q
+        return np.asarray(u_dofs), np.asarray(p_dofs)
+
+    def _linear_problem(
+        self,
+        u_dofs: npt.NDArray[np.int32],
+        p_dofs: npt.NDArray[np.int32],
+        *,
+        preconditioner: bool,
+        **options: Any,
+    ) -> MovingLinearProblem:
+        """The Stokes forms with the indicator, the preconditioner's if asked for, and the
+        :class:`MovingLinearProblem` solving them into :attr:`wh` (``options``: its
+        ``petsc_options``, ``petsc_options_prefix``, ``symmetric``,
+        ``restrict_to_active``)."""
+        msh, mu, W = self.mesh, self.mu, self.W
         (u, p), (v, q) = ufl.TrialFunctions(W), ufl.TestFunctions(W)
-        chi = md.active
+        chi = self.md.active
         a = (
             chi
             * (2 * mu * ufl.inner(self.eps(u), self.eps(v)) - p * ufl.div(v) - q * ufl.div(u))
             * ufl.dx
         )
-        zero = fem.Constant(msh, np.zeros(d, dtype=PETSc.ScalarType))
+        zero = fem.Constant(msh, np.zeros(self.gdim, dtype=PETSc.ScalarType))
         L = chi * ufl.inner(zero, v) * ufl.dx
-        self.wh = fem.Function(W)
-        """The solution ``(u_h, p_h)`` of the last :meth:`solve`."""
         P = None
         if preconditioner:
             P = chi * (mu * ufl.inner(ufl.grad(u), ufl.grad(v)) - p * q / mu) * ufl.dx
         owned = W.dofmap.index_map.size_local  # (a mixed space: one index per unknown)
-        fields = []
-        for name, dofs in (("u", np.asarray(u_dofs)), ("p", np.asarray(p_dofs))):
-            fields.append((name, dofs[dofs < owned]))
-        self.problem = MovingLinearProblem(
-            md,
-            a,
-            L,
-            u=self.wh,
-            P=P,
-            fields=fields,
-            symmetric=symmetric,
-            active_only=True,
-            restrict_to_active=restrict_to_active,
-            petsc_options_prefix=petsc_options_prefix,
-            petsc_options=(ITERATIVE if preconditioner else DIRECT)
-            if petsc_options is None
-            else petsc_options,
+        fields = [(name, dofs[dofs < owned]) for name, dofs in (("u", u_dofs), ("p", p_dofs))]
+        return MovingLinearProblem(
+            self.md, a, L, u=self.wh, P=P, fields=fields, active_only=True, **options
         )
 
-        # The walls: the background's exterior facets.
+    def _fixed_conditions(
+        self, wall_velocity: VelocityData | None, pressure_point: Sequence[float]
+    ) -> None:
+        """The conditions that do not change: the walls (the background's exterior facets)
+        at ``wall_velocity`` and the pressure pinned to zero at ``pressure_point``."""
+        msh, d, W, V, Q = self.mesh, self.gdim, self.W, self.V, self.Q
         walls = dmesh.exterior_facet_indices(msh.topology)
         self.u_wall = fem.Function(V, name="wall_velocity")
         self._set_velocity(self.u_wall, np.zeros(d) if wall_velocity is None else wall_velocity)
-        wall_dofs = fem.locate_dofs_topological((W.sub(0), V), fdim, walls)
+        wall_dofs = fem.locate_dofs_topological((W.sub(0), V), msh.topology.dim - 1, walls)
         self.bc_wall = fem.dirichletbc(self.u_wall, wall_dofs, W.sub(0))
         point = np.asarray(pressure_point, dtype=np.float64)
         if point.shape != (d,):
@@ -649,17 +684,18 @@ class MovingStokes:
             (W.sub(1), Q), lambda y: np.all(np.isclose(y[:d].T, point), axis=1)
         )
         owned = np.count_nonzero(corner[1] < Q.dofmap.index_map.size_local)
-        if md.comm.allreduce(owned) != 1:
+        if self.md.comm.allreduce(owned) != 1:
             raise ValueError(f"pressure_point {pressure_point} is not one vertex of the mesh")
         self.bc_pressure = fem.dirichletbc(fem.Function(Q), corner, W.sub(1))
-        self.u_body = fem.Function(V, name="body_velocity")
-        """The velocity on Gamma_h of the last :meth:`solve` (at every node; the walls'
-        on an immersed container)."""
-        # e_k x x at every node (2D only k = z; 3D k = x, y, z), at every step's geometry
-        self._rotations = [fem.Function(V) for _ in range(1 if d == 2 else 3)]
 
+    def _force_forms(self) -> None:
+        """The forms of the forces and torques on the bodies: the weak residuals against
+        the rigid test fields (their nodes on the bodies, set at each step) and the surface
+        integrals on Gamma_h."""
+        md, mu, d = self.md, self.mu, self.gdim
+        chi = md.active
         # The rigid motions at the nodes on the bodies (zero elsewhere), for the reactions.
-        self._tests = [fem.Function(V) for _ in range(d + len(self._rotations))]
+        self._tests = [fem.Function(self.V) for _ in range(d + len(self._rotations))]
         uh, ph = ufl.split(self.wh)
         self._reaction = [
             ActiveForm(
@@ -668,32 +704,20 @@ class MovingStokes:
             )
             for w in self._tests
         ]
-        n, x = ufl.FacetNormal(msh), ufl.SpatialCoordinate(msh)
+        n, x = ufl.FacetNormal(self.mesh), ufl.SpatialCoordinate(self.mesh)
 
         def traction(side: str):
             """``sigma nu`` with ``nu = -n`` the bodies' outward normal."""
             return -ufl.dot(self.sigma(uh, ph)(side), n(side))
 
-        def moment(side: str):
-            """``x x (sigma nu)``: 2D the scalar, 3D the vector."""
-            t, y = traction(side), x(side)
-            if d == 2:
-                return y[0] * t[1] - y[1] * t[0]
-            return ufl.cross(y, t)
-
         self._surface = [
             ActiveForm(md, md.immersed_integral(partial(_component, traction, i)), on_gamma=True)
             for i in range(d)
         ]
-        if d == 2:
-            self._surface.append(ActiveForm(md, md.immersed_integral(moment), on_gamma=True))
-        else:
-            self._surface += [
-                ActiveForm(md, md.immersed_integral(partial(_component, moment, i)), on_gamma=True)
-                for i in range(3)
-            ]
-        self.body_dofs: list[npt.NDArray[np.int32]] = [np.empty(0, np.int32)] * 2
-        """``[dofs of W, dofs of V]`` of the velocity on the bodies at the last solve."""
+        self._surface += [
+            ActiveForm(md, md.immersed_integral(moment), on_gamma=True)
+            for moment in self._rigid.moments(traction, x)
+        ]
 
     def eps(self, w):
         """The strain rate ``sym(grad w)``."""
@@ -748,7 +772,7 @@ class MovingStokes:
                 f"angular_velocity: {len(self._rotations)} component(s) in {d}D, got {omega}"
             )
         for k, rot in enumerate(self._rotations):  # the nodes have moved
-            rot.interpolate(partial(_rotation, d, k))
+            rot.interpolate(partial(self._rigid.rotation, k))
         self._set_velocity(
             self.u_body, np.zeros(d) if boundary_velocity is None else boundary_velocity
         )
@@ -805,8 +829,7 @@ class MovingStokes:
     def torque(self) -> Any:
         """Fluid torque on the bodies about the origin from the weak residual (collective):
         a float in 2D, ``(3,)`` in 3D."""
-        t = self._sum([f.step() for f in self._reaction[self.gdim :]])
-        return float(t[0]) if self.gdim == 2 else t
+        return self._rigid.torque(self._sum([f.step() for f in self._reaction[self.gdim :]]))
 
     def surface_force(self) -> npt.NDArray[np.float64]:
         """Fluid force on Gamma_h, ``(gdim,)``: ``-int_Gamma_h sigma n ds`` (collective)."""
@@ -815,14 +838,4 @@ class MovingStokes:
     def surface_torque(self) -> Any:
         """Fluid torque about the origin, ``int_Gamma_h x x (sigma nu) ds`` (collective):
         a float in 2D, ``(3,)`` in 3D."""
-        t = self._sum([f.step() for f in self._surface[self.gdim :]])
-        return float(t[0]) if self.gdim == 2 else t
-
-
-def _rotation(d: int, k: int, y: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """``e_k x x`` at points ``y (3, n)``, ``(d, n)`` (2D: ``k = 0`` is ``e_z``)."""
-    if d == 2:
-        return np.vstack([-y[1], y[0]])
-    e = np.zeros((3, 1))
-    e[k] = 1.0
-    return np.cross(e.T, y.T).T
+        return self._rigid.torque(self._sum([f.step() for f in self._surface[self.gdim :]]))
