@@ -222,7 +222,7 @@ class Boundary(abc.ABC):
         d = distances(distance, len(x))
         on_grid = type(self)._lower_bound is Boundary._lower_bound
         if on_grid:  # the grid's bound, its cells kept for the test below
-            cells = self._grid._cells(x)
+            cells = self._grid.cells(x)
             lb = self._grid.lower_bound(x, cells)
         else:
             lb = self._lower_bound(x)

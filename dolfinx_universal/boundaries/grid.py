@@ -73,7 +73,7 @@ class SignGrid:
         self.tree = cKDTree(pts)
         self.spacing = max(float(chords(q).max()) for q in loops)
 
-    def _cells(self, x: Float) -> tuple[Bool, Int]:
+    def cells(self, x: Float) -> tuple[Bool, Int]:
         """Mask of the points in the grid, and their flat cell indices (0 outside)."""
         u = (x - self.origin) * (1.0 / self.h)
         u0, u1 = u[:, 0], u[:, 1]  # by columns: an all() along a short axis is slow
@@ -84,13 +84,13 @@ class SignGrid:
 
     def sign_code(self, x: Float) -> Float:
         """-1 or +1 where the sign is known, 0 where it must be computed exactly."""
-        inside, k = self._cells(x)
+        inside, k = self.cells(x)
         return np.where(inside, self.code.ravel()[k], 1).astype(np.float64)
 
     def lower_bound(self, x: Float, cells: tuple[Bool, Int] | None = None) -> Float:
-        """Lower bound of the distance to Gamma, shape ``(n,)`` (``cells``: :meth:`_cells` of
+        """Lower bound of the distance to Gamma, shape ``(n,)`` (``cells``: :meth:`cells` of
         ``x``, if known)."""
-        inside, k = self._cells(x) if cells is None else cells
+        inside, k = self.cells(x) if cells is None else cells
         out = self.lb.ravel()[k].astype(np.float64)
         xo = x[~inside]
         out[~inside] = norm2(np.maximum(np.maximum(self.box[0] - xo, xo - self.box[1]), 0.0))

@@ -910,7 +910,7 @@ class ImplicitSurface(Surface):
         once)."""
         raw, h = self._edge_crossings(1)
         self._check_grad(raw, h)
-        self._topology  # noqa: B018  (the topology given, checked against the grid's)
+        _ = self._topology  # a topology given is checked against the grid's first
         pts, _, h = self._on_surface(raw, h)
         if len(pts) < 16:
             raise ValueError("phi has too few zero crossings on the grid: raise resolution")
