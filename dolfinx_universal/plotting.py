@@ -336,7 +336,8 @@ def unique_edges(
         (ends[:, 0, 0] == ends[:, 1, 0]) & (ends[:, 0, 1] > ends[:, 1, 1])
     )
     ends[swap] = ends[swap, ::-1]
-    mid = np.round(flat[:, flat.shape[1] // 2], decimals) if flat.shape[1] > 2 else None
+    points = flat.shape[1]  # per polyline: a middle point tells curved edges apart
+    mid = np.round(flat[:, points // 2], decimals) if points > 2 else None
     key = ends.reshape(-1, 4) if mid is None else np.column_stack([ends.reshape(-1, 4), mid])
     _, first, counts = np.unique(key, axis=0, return_index=True, return_counts=True)
     return flat[first], counts == 1, first
@@ -903,10 +904,7 @@ def plot_conforming(
         fig, ax = _new_figure(figsize)
     else:
         fig = _figure(ax)
-    if data is not None:
-        kind, gmask = data[:, 0], data[:, 1:].astype(bool)
-    else:
-        kind, gmask = np.zeros(len(nodes), dtype=np.int8), np.zeros((len(nodes), 3), np.bool_)
+    kind, gmask = _kinds_and_gamma(data, len(nodes))
     colours = np.array([kept_color, moved_color, cut_color, curved_color], dtype=object)
     faces = colours[kind] if (shade and data is not None) else (kept_color if shade else "none")
     edges = cell_edges(nodes, degree, points_per_edge, variant)
@@ -935,16 +933,38 @@ def plot_conforming(
     if isinstance(inset, str) and inset == "auto":
         inset = auto_inset(gamma, boundary)
     if inset is not None and inset is not False:
-        x0, y0, x1, y1 = inset
-        inside = _cells_in_window(nodes, (x0, y0, x1, y1))
-        lw_in = float(np.clip(3.0 * _auto_linewidth(ax, max(inside, 1) * 6), 0.4, 1.2))
-        add_inset(
-            ax,
-            (x0, y0, x1, y1),
-            lambda a: layers.draw(a, lw_in, None),
-            avoid=_legend_corner(legend),
-        )
+        _conforming_inset(ax, inset, nodes, layers, legend)
     return fig, ax
+
+
+def _conforming_inset(
+    ax: Axes,
+    window: tuple[float, float, float, float],
+    nodes: npt.NDArray,
+    layers: _ConformingLayers,
+    legend: bool | str,
+) -> None:
+    """The inset of :func:`plot_conforming` enlarging ``window``, its lines as thick as the
+    cells inside it allow, away from the legend's corner."""
+    x0, y0, x1, y1 = window
+    inside = _cells_in_window(nodes, (x0, y0, x1, y1))
+    lw_in = float(np.clip(3.0 * _auto_linewidth(ax, max(inside, 1) * 6), 0.4, 1.2))
+    add_inset(
+        ax,
+        (x0, y0, x1, y1),
+        lambda a: layers.draw(a, lw_in, None),
+        avoid=_legend_corner(legend),
+    )
+
+
+def _kinds_and_gamma(
+    data: npt.NDArray | None, num_cells: int
+) -> tuple[npt.NDArray[np.int8], npt.NDArray[np.bool_]]:
+    """Each cell's kind and which of its edges lie on Gamma_h, from the gathered ``data``
+    of :func:`_gather_kinds` (without it: unaltered, none)."""
+    if data is None:
+        return np.zeros(num_cells, dtype=np.int8), np.zeros((num_cells, 3), np.bool_)
+    return data[:, 0], data[:, 1:].astype(bool)
 
 
 def _gather_kinds(
