@@ -266,7 +266,7 @@ EXTERIOR_BOX = [[-2.0] * 3, [2.0] * 3]
 def test_levels():
     """The finest level is chosen so that the component sizes are levels (base 2^k) as far
     as that saves cells; every size is at most its target."""
-    from dolfinx_universal.meshing.domain import _levels
+    from dolfinx_universal.meshing.plans_tet import _levels
 
     out = _levels(np.array([0.0634, 0.0333]), np.array([12.6, 0.13]), 5.0, 0.25)
     assert out[0] == pytest.approx(0.0634) and out[1] == pytest.approx(0.0317)
@@ -281,8 +281,9 @@ def test_auto_background():
     """``tet_background="auto"``: the graded octree where it has fewer than half the
     tetrahedra of the A15 background (a small body in a large box), else A15 (a torus
     whose band fills its box)."""
-    from dolfinx_universal.meshing.domain import UniformPlan as _UniformPlan
-    from dolfinx_universal.meshing.domain import _GradedTetPlan, _tet_plan
+    from dolfinx_universal.meshing.plans_tet import GradedTetPlan as _GradedTetPlan
+    from dolfinx_universal.meshing.plans_tet import UniformPlan as _UniformPlan
+    from dolfinx_universal.meshing.plans_tet import tet_plan as _tet_plan
 
     plan = _tet_plan(comm, EXTERIOR, 0.8, 1, EXTERIOR_BOX, 3.0, None, "auto", 5e6)
     assert isinstance(plan, _GradedTetPlan) and plan.top == pytest.approx(8 * plan.base)
@@ -303,25 +304,26 @@ def test_auto_falls_back_to_a15():
     size where the refined octree would exceed ``max_cells`` (there: both components'
     bands halved, 6.8e6 tetrahedra estimated, the A15 one 2.4e6; mesh_domain raised) or
     have more tetrahedra; else the refined octree. Once only; never for ``"graded"``."""
-    from dolfinx_universal.meshing.domain import UniformPlan as _UniformPlan
-    from dolfinx_universal.meshing.domain import _GradedTetPlan, _refined, _tet_plan
+    from dolfinx_universal.meshing.plans_tet import GradedTetPlan as _GradedTetPlan
+    from dolfinx_universal.meshing.plans_tet import UniformPlan as _UniformPlan
+    from dolfinx_universal.meshing.plans_tet import tet_plan as _tet_plan
 
     place = np.array([C + [0.3, 0.0, 0.0]])  # on the sphere
     plan = _tet_plan(comm, EXTERIOR, 0.8, 1, EXTERIOR_BOX, 3.0, None, "auto", 5e6)
     assert isinstance(plan, _GradedTetPlan) and isinstance(plan.alternative, _UniformPlan)
     a15 = plan.alternative
     plan.estimate = lambda: 6e6  # type: ignore[method-assign]  # the refined octree's
-    nxt, note = _refined(plan, place, comm, 5e6)
+    nxt, note = plan.refined(place, comm, 5e6)
     assert nxt is a15 and a15.size == pytest.approx(0.1) and "the A15 uniform background" in note
     # a small body in a large box: the refined octree (4.4e5) is still smaller than A15 (8e5)
     plan = _tet_plan(comm, EXTERIOR, 0.8, 1, EXTERIOR_BOX, 3.0, None, "auto", 5e6)
-    nxt, note = _refined(plan, place, comm, 5e6)
+    nxt, note = plan.refined(place, comm, 5e6)
     assert nxt is plan and note == "" and plan.alternative is None
     assert np.allclose(plan.component_sizes, 0.05)
     plan = _tet_plan(comm, EXTERIOR, 0.8, 1, EXTERIOR_BOX, 3.0, None, "graded", 5e6)
     assert isinstance(plan, _GradedTetPlan) and plan.alternative is None
     plan.estimate = lambda: 6e6  # type: ignore[method-assign]
-    assert _refined(plan, place, comm, 5e6)[0] is plan  # asked for: kept (check_size refuses)
+    assert plan.refined(place, comm, 5e6)[0] is plan  # asked for: kept (check_size refuses)
 
 
 @pytest.mark.mpi
@@ -341,7 +343,7 @@ def test_mesh_domain_graded():
     assert f"{cert.num_cells} tetrahedra (degree 1) from the graded BCC octree background" in text
     assert "1 closed surface(s), one per surface" in text
     assert "  dihedral angles in [" in text and "triangle" not in text and "loop" not in text
-    from dolfinx_universal.meshing.domain import _GradedTetPlan
+    from dolfinx_universal.meshing.plans_tet import GradedTetPlan as _GradedTetPlan
 
     plan = _GradedTetPlan.create(comm, EXTERIOR, 0.8, 1, EXTERIOR_BOX, 3.0, None)
     assert cert.num_background_cells == plan.count(comm)
@@ -368,7 +370,7 @@ def test_mesh_domain_graded():
 def test_plan_refine():
     """A failed check near a component halves that component's size (a level down), with
     denser band sources; the others keep theirs (here no finer band reaches into theirs)."""
-    from dolfinx_universal.meshing.domain import _GradedTetPlan
+    from dolfinx_universal.meshing.plans_tet import GradedTetPlan as _GradedTetPlan
 
     two = du.Domain(None, [du.Sphere(C - [0.8, 0, 0], 0.3), du.Sphere(C + [1.0, 0, 0], 0.15)])
     plan = _GradedTetPlan.create(comm, two, 0.8, 1, [[-2.0] * 3, [2.0] * 3], 3.0, None)

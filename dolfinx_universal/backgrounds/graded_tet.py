@@ -75,6 +75,8 @@ from dolfinx_universal.core.arrays import Float, Int, kd_query
 __all__ = [
     "DIHEDRAL_RANGE",
     "BandSizeField",
+    "GradedOctree",
+    "graded_octree",
     "graded_tet_mesh",
     "graded_tetrahedralisation",
 ]
@@ -775,8 +777,37 @@ def graded_tet_mesh(
     -------
     A DOLFINx tetrahedral mesh with degree-1 geometry and shared-facet ghosts.
     """
+    return graded_octree(box, size, max_size, min_size, comm).mesh(comm)
+
+
+class GradedOctree(NamedTuple):
+    """A balanced octree of a box with its leaves classified: the tetrahedra of
+    :func:`graded_tet_mesh`, counted before they are built."""
+
+    tree: _Octree
+    leaves: _Leaves
+
+    @property
+    def num_cells(self) -> int:
+        """Tetrahedra of the mesh."""
+        return int(self.leaves.weight.sum())
+
+    def mesh(self, comm: MPI.Comm) -> dmesh.Mesh:
+        """The distributed mesh (collective; see :func:`graded_tet_mesh`)."""
+        return _mesh(comm, self.tree, self.leaves)
+
+
+def graded_octree(
+    box: Sequence[Sequence[float]] | npt.ArrayLike,
+    size: SizeLike,
+    max_size: float,
+    min_size: float | None = None,
+    comm: MPI.Comm | None = None,
+) -> GradedOctree:
+    """The octree of :func:`graded_tet_mesh` (arguments as there; ``size`` sampled in
+    parallel over ``comm`` when given), to count its tetrahedra before building them."""
     t = _octree(box, size, max_size, min_size, comm)
-    return _mesh(comm, t, _classify(t))
+    return GradedOctree(t, _classify(t))
 
 
 def _mesh(comm: MPI.Comm, t: _Octree, lv: _Leaves) -> dmesh.Mesh:

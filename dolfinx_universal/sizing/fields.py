@@ -14,7 +14,9 @@ import numpy.typing as npt
 from scipy import ndimage
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
+from dolfinx_universal.backgrounds.lattice_tri import largest_of_cells
 from dolfinx_universal.boundaries.curves import Boundary
+from dolfinx_universal.cells.kit import cell_kernels
 from dolfinx_universal.core.arrays import (
     Bool,
     Float,
@@ -930,9 +932,6 @@ def refine_size(
     -------
     The size field, a callable ``(n, gdim) -> (n,)``.
     """
-    from dolfinx_universal.backgrounds.lattice_tri import largest_of_cells
-    from dolfinx_universal.cells.kit import cell_kernels
-
     factor = float(factor)
     if not (0 < factor <= 1):
         raise ValueError(f"factor must be in (0, 1], got {factor}")
@@ -1032,11 +1031,8 @@ class _Refined:
     ) -> None:
         self.base, self.points, self.sizes = base, points, sizes
         self.h_max, self.gradation = h_max, positive(gradation, "gradation")
-        self.sources: SizeFunction
-        if points.shape[1] == 2:
-            self.sources = SizeField(points, sizes, h_max, gradation)
-        else:
-            self.sources = _GradedSources(points, sizes, h_max, self.gradation)
+        kind = _POINT_SOURCES[points.shape[1]]
+        self.sources: SizeFunction = kind(points, sizes, h_max, self.gradation)
 
     def __call__(self, x: npt.ArrayLike) -> Float:
         p = _user_points(x)
@@ -1132,3 +1128,11 @@ class _GradedSources:
 
     def __getstate__(self) -> dict[str, object]:
         return {**self.__dict__, "_trees": None}
+
+
+_POINT_SOURCES: dict[int, Callable[[Float, Float, float, float], SizeFunction]] = {
+    2: SizeField,
+    3: _GradedSources,
+}
+"""The envelope of point sources of :func:`refine_size` by dimension: the grid field of
+:class:`SizeField` in the plane, binned k-d trees in space."""

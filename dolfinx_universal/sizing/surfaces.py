@@ -36,6 +36,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from dolfinx_universal.boundaries.curves import Boundary, Domain, RigidMotion
+from dolfinx_universal.boundaries.surfaces import ImplicitSurface
 from dolfinx_universal.core.arrays import Float, Int, kd_query, positive, readonly
 
 __all__ = [
@@ -96,8 +97,6 @@ def component_boundaries(boundary: Boundary) -> list[Boundary]:
 def _searched(boundary: Boundary) -> bool:
     """Whether a component of ``boundary`` finds closest points by a search from seeds
     (:class:`~dolfinx_universal.boundaries.surfaces.ImplicitSurface`, also under a rigid motion)."""
-    from dolfinx_universal.boundaries.surfaces import ImplicitSurface
-
     for comp in component_boundaries(boundary):
         while isinstance(comp, RigidMotion):
             comp = comp.base
