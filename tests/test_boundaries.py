@@ -21,6 +21,9 @@ from dolfinx_universal.boundaries.curves import (
     PolarCurve,
     RigidMotion,
 )
+from dolfinx_universal.boundaries.numerics import normd
+from dolfinx_universal.boundaries.surfaces import Sphere
+from dolfinx_universal.core.arrays import norm2
 
 # ----------------------------------------------------------------------------- references
 
@@ -443,6 +446,40 @@ def test_rigid_motion_moved():
     moved_y = np.column_stack([1.0 - y[:, 1], y[:, 0] - 1.0])
     np.testing.assert_allclose(turned.sample(7), moved_y, atol=1e-14)  # cos(pi/2) = 6e-17: ulps
     np.testing.assert_allclose(turned.normal(moved_y), _rot(base.normal(y), np.pi / 2), atol=1e-12)
+
+
+def test_rigid_motion_rotation_per_dimension():
+    """A planar motion turns by its angle: ``rotation`` (for surfaces) is refused by the
+    constructor and by ``moved``; its tangent bases are its tangents turned, as the base's;
+    the default centre and translation (two zeros) are the origin of space too."""
+    base = polar()
+    m = RigidMotion(base, 0.7, (0.5, -0.2), (0.1, 0.3))
+    c, s = np.cos(0.7), np.sin(0.7)
+    np.testing.assert_array_equal(m.rotation, [[c, -s], [s, c]])
+    y = m.sample(40)
+    np.testing.assert_array_equal(m.tangent_basis(y), m.tangent(y)[:, None, :])
+    np.testing.assert_allclose(np.linalg.norm(m.tangent(y), axis=1), 1.0, atol=1e-14)
+    for make in (
+        lambda: RigidMotion(base, rotation=((0, 0, 1), 0.1)),
+        lambda: m.moved(0.1, rotation=((0, 0, 1), 0.1)),
+    ):
+        with pytest.raises(ValueError, match="rotation is for surfaces"):
+            make()
+    solid = RigidMotion(Sphere((0.0, 0.0, 0.0), 1.0), 0.2)  # the planar defaults, in 3D
+    np.testing.assert_array_equal(solid.center, np.zeros(3))
+    np.testing.assert_array_equal(solid.translation, np.zeros(3))
+    assert solid.rotation.shape == (3, 3)
+    with pytest.raises(ValueError, match="translation must be three finite numbers"):
+        RigidMotion(Sphere((0.0, 0.0, 0.0), 1.0), translation=(1.0, 0.0))
+
+
+def test_normd_is_norm2_in_the_plane():
+    """One norm for curves and surfaces: in the plane, bit for bit the arithmetic of
+    ``norm2`` (the meshes of curves stay the same)."""
+    v = np.random.default_rng(6).standard_normal((1000, 2)) * np.logspace(-3, 3, 1000)[:, None]
+    np.testing.assert_array_equal(normd(v), norm2(v))
+    w = np.random.default_rng(7).standard_normal((100, 3))
+    np.testing.assert_array_equal(normd(w), np.sqrt(w[:, 0] ** 2 + w[:, 1] ** 2 + w[:, 2] ** 2))
 
 
 def test_domain_components():
