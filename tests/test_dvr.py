@@ -285,7 +285,7 @@ def test_star_terms_match_star_faces():
 
 
 def test_vertex_colours_graph():
-    """The colours of relax.vertex_colours (first fit in the same rounds), a proper
+    """The colours of relax_common.vertex_colours (first fit in the same rounds), a proper
     colouring of the vertices of each cell; -1 corners are not coloured."""
     from dolfinx_universal.conforming.relax_common import (
         SubVertices,

@@ -35,16 +35,16 @@ if TYPE_CHECKING:
     from dolfinx_universal.conforming.snap import PositiveFacets
 
 __all__ = [
-    "SurfaceContainment",
+    "Containment",
     "SurfaceParts",
     "all_outside_faces",
     "conditioning_dihedral",
     "conditioning_problem",
     "open_chains",
-    "sampled_parts",
-    "surface_checks",
+    "sample_gamma",
     "surface_parts",
     "surface_topology",
+    "topology_problems",
 ]
 
 
@@ -126,7 +126,7 @@ def open_chains(count: Int) -> Bool:
     return np.zeros(len(count), dtype=bool)
 
 
-class SurfaceContainment:
+class Containment:
     """The containment check of a tetrahedron background: samples of Gamma located in the
     stars of the vertices near Gamma, then, for the few left, in the cells near them.
 
@@ -166,7 +166,7 @@ class SurfaceContainment:
         return missing_samples_problems(comm, pts, found)
 
 
-def surface_checks(
+def topology_problems(
     comm: MPI.Comm,
     gids: npt.NDArray[np.int64],
     xp: Float,
@@ -562,7 +562,7 @@ def _side_problems(
     return problems, int(inside.sum()) + int(far_kept)
 
 
-def sampled_parts(comm: MPI.Comm, boundary: Boundary, spacing: float) -> SurfaceParts:
+def sample_gamma(comm: MPI.Comm, boundary: Boundary, spacing: float) -> SurfaceParts:
     """:func:`surface_parts` with about one sample per ``spacing**2`` of area, at least 4096
     per surface (collective: a failure of the boundary's sampler is raised on every rank).
 

@@ -31,13 +31,13 @@ if TYPE_CHECKING:
     from dolfinx_universal.conforming.snap import PositiveFacets
 
 __all__ = [
-    "CurveContainment",
+    "Containment",
     "conditioning_problem",
-    "gamma_h_checks",
     "gamma_h_topology",
     "no_measures",
     "open_chains",
-    "sample_curves",
+    "sample_gamma",
+    "topology_problems",
 ]
 
 
@@ -83,12 +83,12 @@ def no_measures(x: Float, y: Float, moved: Bool, cells: Int) -> None:
     return None
 
 
-def sample_curves(comm: MPI.Comm, boundary: Boundary, spacing: float) -> CurveSamples:
+def sample_gamma(comm: MPI.Comm, boundary: Boundary, spacing: float) -> CurveSamples:
     """Dense labelled samples of the curves of Gamma, ``spacing`` apart (collective)."""
     return collective_call(comm, "sampling the boundary", curve_samples, boundary, spacing)
 
 
-class CurveContainment:
+class Containment:
     """The containment check of a triangle background: samples of Gamma located in the
     cells near Gamma (the first check of a background, a static domain) or, from the second
     check on (moving domains), with a locator of all cells, built once and cached.
@@ -134,7 +134,7 @@ class CurveContainment:
         return problems
 
 
-def gamma_h_checks(
+def topology_problems(
     comm: MPI.Comm,
     gids: npt.NDArray[np.int64],
     xp: Float,

@@ -62,7 +62,7 @@ class ConformingKit:
     containment: Callable[..., Any]
     """The containment check, built once per background from ``(x, c2v)``: its
     ``problems(comm, pts, phi, h, near_cells, near_cv, v2c)``."""
-    gamma_topology: Callable[..., tuple[list, int, int]]
+    topology_problems: Callable[..., tuple[list, int, int]]
     """The topology check of Gamma_h, ``(comm, gids, xp, facets, samples, far_kept) ->
     (problems, closed parts, kept pieces)``."""
     measures: Callable[..., checks.TetMeasures | None]
@@ -87,10 +87,10 @@ _KITS = {
         repair=snap.triangle_repair,
         conditioning=checks_tri.conditioning_problem,
         open_chains=checks_tri.open_chains,
-        sample_gamma=checks_tri.sample_curves,
+        sample_gamma=checks_tri.sample_gamma,
         sample_spacing=0.25,
-        containment=checks_tri.CurveContainment,
-        gamma_topology=checks_tri.gamma_h_checks,
+        containment=checks_tri.Containment,
+        topology_problems=checks_tri.topology_problems,
         measures=checks_tri.no_measures,
         shape_figures=quality_tri.shape_figures,
         relax=relax_triangles,
@@ -103,10 +103,10 @@ _KITS = {
         repair=snap.tetrahedron_repair,
         conditioning=checks_tet.conditioning_problem,
         open_chains=checks_tet.open_chains,
-        sample_gamma=checks_tet.sampled_parts,
+        sample_gamma=checks_tet.sample_gamma,
         sample_spacing=0.5,
-        containment=checks_tet.SurfaceContainment,
-        gamma_topology=checks_tet.surface_checks,
+        containment=checks_tet.Containment,
+        topology_problems=checks_tet.topology_problems,
         measures=checks.tet_measures,
         shape_figures=quality_tet.shape_figures,
         relax=relax_tetrahedra,

@@ -559,7 +559,7 @@ class UniversalMesh:
         far_kept = comm.allreduce(bool(np.any(s[self._outer_vertices] < 0)), op=MPI.LOR)
         facets = pe.facets
         gids = imv.local_to_global(facets.ravel().astype(np.int32)).reshape(facets.shape)
-        topo_problems, num_loops, num_pieces = kit.gamma_topology(
+        topo_problems, num_loops, num_pieces = kit.topology_problems(
             comm, gids, xp, pe, samples, far_kept
         )
         raise_collective(comm, topo_problems)
