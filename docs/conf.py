@@ -83,15 +83,14 @@ html_theme_options = {
 # The section navigation only where a page has children (demos, API); elsewhere the text
 # takes the width.
 html_sidebars = {
-    "**": [],
-    "demos": ["sidebar-nav-bs"],
-    "api": ["sidebar-nav-bs"],
-    "_autogen/**": ["sidebar-nav-bs"],
+    page: [] for page in ("index", "install", "method", "mpi", "gallery", "measurements")
 }
 
 # Demo pages: where the demos are, where their pages go.
 demo_source_dir = str(ROOT / "demos")
 demo_output_dir = "_autogen/demos"
+# The demos' figures (quick runs, made by docs/make_figures.py), shown on their pages.
+demo_figures_dir = "figures/demos"
 # API pages: one page per subpackage (its modules found by pkgutil.walk_packages), in the
 # order of the pipeline; subpackages and top-level modules not listed follow in alphabetical
 # order, listed ones that do not exist are skipped.

@@ -14,7 +14,10 @@ whatever is in ``demos/``:
   Markdown cell when it starts with a level-1 heading; else the file name);
 * references to internal design notes are dropped (``sanitize.py``);
 * links to local files (``[text](path)``) become ``text (`path`)`` since they point
-  into the repository, not into the documentation.
+  into the repository, not into the documentation;
+* the PNG figures committed under ``<demo_figures_dir>/<name>/`` (written by the demo's
+  quick run, copied there by ``docs/make_figures.py``) are shown in a last section,
+  "Figures".
 """
 
 from __future__ import annotations
@@ -146,8 +149,28 @@ def _cells(lines: list[str]) -> list[tuple[str, list[str]]]:
     return cells
 
 
-def demo_to_myst(path: Path, download: str) -> str:
-    """The MyST text of one demo."""
+def figures_section(name: str, figures: list[str]) -> str:
+    """The "Figures" section of demo ``name``: ``figures`` are paths from the source
+    directory (``figures/demos/<name>/<file>.png``)."""
+    if not figures:
+        return ""
+    parts = [
+        "## Figures of the quick run\n",
+        f"The figures of the quick run, `python demos/{name}.py --quick --out DIR` (coarser "
+        "meshes and fewer steps than the full run, which writes the same files); "
+        "`docs/make_figures.py` copies them here.\n",
+    ]
+    for fig in figures:
+        file = Path(fig).name
+        parts.append(
+            f"```{{figure}} /{fig}\n:alt: {file} of demos/{name}.py (quick run)\n"
+            f":width: 100%\n\n`{file}`\n```\n"
+        )
+    return "\n".join(parts)
+
+
+def demo_to_myst(path: Path, download: str, figures: list[str] | None = None) -> str:
+    """The MyST text of one demo (``figures``: see :func:`figures_section`)."""
     lines, docstring = _strip_header(path.read_text(encoding="utf-8").splitlines())
     cells = _cells(lines)
     parts: list[str] = []
@@ -172,6 +195,9 @@ def demo_to_myst(path: Path, download: str) -> str:
         f"`python demos/{path.name}` (add `--quick` for a short run), also under "
         f"`mpirun -n 2`.\n"
     )
+    section = figures_section(path.stem, figures or [])
+    if section:
+        parts.append(section)
     return "\n".join(parts)
 
 
@@ -187,9 +213,12 @@ def generate(app: Sphinx) -> None:
     out.mkdir(parents=True, exist_ok=True)
     demos = sorted(p for p in src.glob("*.py") if not p.name.startswith("_"))
     names = set()
+    srcdir = Path(app.srcdir)
     for demo in demos:
         download = os.path.relpath(demo, out)
-        _write(out / f"{demo.stem}.md", demo_to_myst(demo, download))
+        pngs = sorted((srcdir / app.config.demo_figures_dir / demo.stem).glob("*.png"))
+        figures = [png.relative_to(srcdir).as_posix() for png in pngs]
+        _write(out / f"{demo.stem}.md", demo_to_myst(demo, download, figures))
         names.add(demo.stem)
     for stale in out.glob("*.md"):
         if stale.stem not in names:
@@ -201,5 +230,6 @@ def generate(app: Sphinx) -> None:
 def setup(app: Sphinx) -> dict:
     app.add_config_value("demo_source_dir", "../demos", "env")
     app.add_config_value("demo_output_dir", "_autogen/demos", "env")
+    app.add_config_value("demo_figures_dir", "figures/demos", "env")
     app.connect("builder-inited", generate)
     return {"version": "0.1", "parallel_read_safe": True, "parallel_write_safe": True}
