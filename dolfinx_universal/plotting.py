@@ -102,10 +102,9 @@ def _check_nodes(nodes: npt.ArrayLike, degree: int | None) -> tuple[npt.NDArray,
         raise ValueError(f"nodes must have shape (num_cells, num_nodes, 2), got {nodes.shape}")
     nodes = nodes[:, :, :2]
     k = _degree_of(nodes.shape[1]) if degree is None else int(degree)
-    if (k + 1) * (k + 2) // 2 != nodes.shape[1]:
-        raise ValueError(
-            f"degree {k} needs {(k + 1) * (k + 2) // 2} nodes per cell, got {nodes.shape[1]}"
-        )
+    needed = (k + 1) * (k + 2) // 2
+    if nodes.shape[1] != needed:
+        raise ValueError(f"degree {k} needs {needed} nodes per cell, got {nodes.shape[1]}")
     return nodes, k
 
 
