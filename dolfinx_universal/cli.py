@@ -554,8 +554,9 @@ def _shape_options(p: argparse.ArgumentParser) -> None:
             "not complex-safe); the surface's bounding box from --box, else found by "
             "sampling phi on 64^3 grids over cubes of half-width 1, 2, 4, ..., 1024, 1/2, "
             "..., 1/1024 around the center until phi < 0 lies strictly inside one (give "
-            "--box for thin solids); its genus and number of components are counted on "
-            "that grid unless --genus and --components give them"
+            "--box for thin solids); its genus and number of components are counted on a "
+            "grid of 64 cells along the box unless --genus and --components give them "
+            "(then checked against those counted)"
         ),
     )
     shape.add_argument(
@@ -595,16 +596,16 @@ def _shape_options(p: argparse.ArgumentParser) -> None:
         type=int,
         default=None,
         metavar="G",
-        help="total genus of the implicit surface (0 for a sphere, 1 for a torus) [default: "
-        "counted on the sampling grid]",
+        help="total genus of the implicit surface (0 for a sphere, 1 for a torus), checked "
+        "against the genus counted on a grid [default: counted on a grid over the box]",
     )
     shape.add_argument(
         "--components",
         type=int,
         default=None,
         metavar="N",
-        help="number of connected components of the implicit surface [default: counted on "
-        "the sampling grid]",
+        help="number of connected components of the implicit surface, checked against the "
+        "number counted on a grid [default: counted on a grid over the box]",
     )
 
 
@@ -1035,13 +1036,15 @@ class _Surfaces:
         _plot_surface_mesh(comm, meshed.conforming, path, title, float(quality["theta_min_deg"]))
 
 
-_KINDS: dict[int, type[_Curves] | type[_Surfaces]] = {2: _Curves, 3: _Surfaces}
+_Kind = type[_Curves] | type[_Surfaces]
+"""The curves' or the surfaces' way (:class:`_Curves`, :class:`_Surfaces`)."""
+_KINDS: dict[int, _Kind] = {2: _Curves, 3: _Surfaces}
 """What differs between curves and surfaces, by the dimension of the space."""
 _DIMENSION = {**{name: 2 for name in _CURVES}, **{name: 3 for name in _SURFACES}}
 """The dimension of the space of each shape option."""
 
 
-def _kind(args: argparse.Namespace) -> type[_Curves] | type[_Surfaces]:
+def _kind(args: argparse.Namespace) -> _Kind:
     """The curves' or the surfaces' way, by the shape option given."""
     return _KINDS[_DIMENSION[_shape_name(args)]]
 
@@ -1224,7 +1227,7 @@ def _conform_shape(
     shape: dict[str, Any],
     sizes: _Sizes,
     args: argparse.Namespace,
-    kind: type[_Curves] | type[_Surfaces],
+    kind: _Kind,
     timings: dict[str, float],
 ) -> _Meshed:
     """:func:`_mesh` with its errors for the command line (collective): a parameter check
@@ -1237,7 +1240,7 @@ def _conform_shape(
         )  # fmt: skip
     except MeshingError as e:
         if shape["type"] == "implicit" and "Euler characteristic" in str(e):
-            how = "given" if shape["topology"] == "given" else "counted on the sampling grid"
+            how = "given" if shape["topology"] == "given" else "counted on a grid"
             raise MeshingError(
                 f"{e}; for --implicit check the surface's topology ({shape['num_components']} "
                 f"component(s), genus {shape['genus']}, {how}): give --genus and --components",
@@ -1266,7 +1269,7 @@ def _outputs(
     shape: dict[str, Any],
     sizes: _Sizes,
     args: argparse.Namespace,
-    kind: type[_Curves] | type[_Surfaces],
+    kind: _Kind,
     plot: bool,
     timings: dict[str, float],
 ) -> tuple[dict[str, Any], list[str]]:
@@ -1292,7 +1295,7 @@ def _summary(
     shape: dict[str, Any],
     sizes: _Sizes,
     args: argparse.Namespace,
-    kind: type[_Curves] | type[_Surfaces],
+    kind: _Kind,
     quality: dict[str, Any],
     files: list[str],
     timings: dict[str, float],
