@@ -282,13 +282,16 @@ def circle_figures(comm: MPI.Comm, rows: list[dict], meshes: dict, out: Path) ->
         bx.set_title("before and after the relaxation")
         handles = bx.get_legend_handles_labels()
         more = cx.get_legend_handles_labels()
-        bx.legend(handles[0] + more[0], handles[1] + more[1], fontsize=7, loc="center right")
+        bx.legend(  # below the axes, as the other panel's: inside, they would hide the data
+            handles[0] + more[0], handles[1] + more[1], fontsize=7, ncols=3,
+            loc="upper center", bbox_to_anchor=(0.5, -0.14),
+        )  # fmt: skip
         for a in (ax, bx):
             a.set_xticks(hs, [f"1/{round(R / h)}" for h in hs])
             a.set_xticks([], minor=True)
             a.set_xlabel("h / R")
             a.grid(True, lw=0.3)
-        ax.legend(fontsize=7, loc="upper left", ncols=2)
+        ax.legend(fontsize=7, ncols=3, loc="upper center", bbox_to_anchor=(0.5, -0.14))
         save(fig, out / "circle_quality.png")
 
 
