@@ -18,6 +18,7 @@ from mpi4py import MPI
 import numpy as np
 import numpy.typing as npt
 from dolfinx import la
+from dolfinx.cpp.common import create_sub_index_map
 
 from dolfinx_universal.core.arrays import Bool, Float, Int
 from dolfinx_universal.core.collective import combine_ghosts, reduce_sign, vertex_reduce
@@ -175,8 +176,6 @@ class SubVertices:
             self.vertices = np.asarray(vertices, dtype=np.int32)
             self.size_local = len(self.vertices)
         else:
-            from dolfinx.cpp.common import create_sub_index_map
-
             self.map, parent = create_sub_index_map(imv, np.asarray(vertices, np.int32), False)
             self.vertices = np.asarray(parent, dtype=np.int32)
             self.size_local = self.map.size_local

@@ -165,7 +165,7 @@ def project_band(
 
 
 def band_cells(
-    topology: dmesh.Topology, band: Int, num_owned_cells: int, c2v: Int
+    topology: dmesh.Topology, band: Int, num_owned_cells: int
 ) -> tuple[npt.NDArray[np.int32], npt.NDArray[np.int32]]:
     """Cells of a triangle background with a vertex in the band: all of them, and the owned
     ones (DOLFINx's incident entities of the band's vertices).
@@ -180,8 +180,6 @@ def band_cells(
         Band vertices ``(num_band,)``.
     num_owned_cells
         Number of owned cells (the first ones).
-    c2v
-        Cell -> vertex connectivity ``(num_cells, tdim + 1)``.
 
     Returns
     -------
@@ -272,7 +270,7 @@ def triangle_band(
     topology: dmesh.Topology, c2v: Int, band: Int, s: Float, num_owned_cells: int
 ) -> Band:
     """The cells at the band of a triangle background (:func:`band_cells`)."""
-    near_all, near_owned = band_cells(topology, band, num_owned_cells, c2v)
+    near_all, near_owned = band_cells(topology, band, num_owned_cells)
     return Band(near_all, near_owned, c2v[near_owned], None)
 
 
