@@ -188,12 +188,14 @@ def draw_overview(md2, md3, path: Path) -> None:
         bx,
         view="clipped",
         normal=(0.0, 0.0, 1.0),  # the upper half removed: the cut shows the tetrahedra
-        elev=48.0,
+        elev=32.0,
         azim=-62.0,
         colorbar=True,
         linewidth=0.1,
         title="3D: a torus, degree 2, clipped (colour: smallest dihedral angle)",
     )
+    x = md3.mesh.geometry.x
+    bx.set_box_aspect(np.ptp(x, axis=0), zoom=1.2)  # the torus fills its half
     bx.set_axis_off()
     _save(fig, path)
 
