@@ -8,22 +8,64 @@ asserts the targets.
 from __future__ import annotations
 
 import ast
-import re
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
 PACKAGE_DIR = Path(__file__).resolve().parents[1] / "dolfinx_universal"
 
-DIMENSION_TEST = re.compile(
-    r"\b(tdim|gdim|dim|ndim)\b|\.shape\[1\]|topology\.dim|cell_type|\"(triangle|tetrahedron)\""
-    r"|'(triangle|tetrahedron)'|\bis_3d\b|\bthree_d\b"
-)
-"""What a test on the dimension looks like: the dimension asked any of the ways the code
-asks it (topological or geometric dimension, the width of a point or cell array, the cell
-type or its name)."""
-DIMENSION_VALUE = re.compile(r"(==|!=|<=|>=|<|>)\s*[23]\b|\b[23]\s*(==|!=)|\"(triangle|tetrahedron)\"")
-"""...compared with a dimension (2 or 3) or a cell name."""
+DIMENSION_NAMES = {"tdim", "gdim", "dim", "dimension"}
+"""Names and attributes that hold a dimension (``topology.dim``, ``boundary.gdim``, ...)."""
+CELL_NAMES = {"triangle", "tetrahedron"}
+
+
+def _is_dimension(node: ast.AST) -> bool:
+    """Whether an expression asks for the dimension: a name or attribute of
+    :data:`DIMENSION_NAMES`, the width ``a.shape[1]`` / ``a.shape[-1]`` of a point or cell
+    array, ``getattr(x, "gdim", ...)``, or a cell type."""
+    if isinstance(node, ast.Name):
+        return node.id in DIMENSION_NAMES
+    if isinstance(node, ast.Attribute):
+        return node.attr in DIMENSION_NAMES or node.attr in ("cell_type", "cell_name")
+    if isinstance(node, ast.Subscript):
+        value, index = node.value, node.slice
+        if isinstance(value, ast.Attribute) and value.attr == "shape":
+            text = ast.unparse(index)
+            return text in ("1", "-1")
+    if isinstance(node, ast.Call):
+        if isinstance(node.func, ast.Name) and node.func.id in ("int", "len"):
+            return any(_is_dimension(a) for a in node.args)
+        if isinstance(node.func, ast.Name) and node.func.id == "getattr" and len(node.args) > 1:
+            arg = node.args[1]
+            return isinstance(arg, ast.Constant) and arg.value in DIMENSION_NAMES
+    return False
+
+
+def _is_dimension_value(node: ast.AST) -> bool:
+    """2, 3, a cell name or a cell type, or a tuple of them."""
+    if isinstance(node, ast.Constant):
+        return node.value in (2, 3) or node.value in CELL_NAMES
+    if isinstance(node, (ast.Tuple, ast.List, ast.Set)):
+        return any(_is_dimension_value(e) for e in node.elts)
+    if isinstance(node, ast.Attribute):
+        return node.attr in CELL_NAMES
+    return False
+
+
+def tests_dimension(test: ast.AST) -> bool:
+    """Whether a condition compares the dimension with a dimension (or cell name)."""
+    for node in ast.walk(test):
+        if isinstance(node, ast.Compare):
+            sides = [node.left, *node.comparators]
+            if any(_is_dimension(a) for a in sides) and any(_is_dimension_value(b) for b in sides):
+                return True
+    return False
+
+
+def is_argument_check(node: ast.If | ast.IfExp | ast.While) -> bool:
+    """A branch whose body only raises: an argument check, not a branch of the algorithm."""
+    body = node.body if isinstance(node.body, list) else [node.body]
+    return not getattr(node, "orelse", None) and all(isinstance(b, ast.Raise) for b in body)
 
 
 @dataclass
@@ -49,9 +91,7 @@ def load(root: Path = PACKAGE_DIR) -> dict[str, Module]:
     mods: dict[str, Module] = {}
     for path in sorted(root.rglob("*.py")):
         src = path.read_text(encoding="utf-8")
-        mods[_module_name(path, root)] = Module(
-            _module_name(path, root), path, ast.parse(src), src
-        )
+        mods[_module_name(path, root)] = Module(_module_name(path, root), path, ast.parse(src), src)
     pkg = root.name
     for mod in mods.values():
         is_pkg = mod.path.name == "__init__.py"
@@ -158,17 +198,16 @@ def private_cross_imports(mods: dict[str, Module]) -> list[tuple[str, str, str]]
     return out
 
 
-def dimension_branches(mods: dict[str, Module]) -> dict[str, int]:
-    """Branches (``if``/``elif``/conditional expressions, ``match`` cases) that test the
-    dimension, per module."""
+def dimension_branches(mods: dict[str, Module], argument_checks: bool = False) -> dict[str, int]:
+    """Branches (``if``/``elif``/conditional expressions, ``while``) that test the
+    dimension, per module: those of the algorithm, or (``argument_checks``) those whose
+    body only raises."""
     counts: dict[str, int] = {}
     for m, mod in mods.items():
         n = 0
         for node in ast.walk(mod.tree):
-            if isinstance(node, (ast.If, ast.IfExp, ast.While)):
-                test = ast.unparse(node.test)
-                if DIMENSION_TEST.search(test) and DIMENSION_VALUE.search(test):
-                    n += 1
+            if isinstance(node, (ast.If, ast.IfExp, ast.While)) and tests_dimension(node.test):
+                n += is_argument_check(node) == argument_checks
         if n:
             counts[m] = n
     return counts
@@ -208,6 +247,8 @@ def report(root: Path = PACKAGE_DIR) -> str:
     db = dimension_branches(mods)
     lines.append(f"dimension branches: {sum(db.values())}")
     lines += [f"  {m}: {n}" for m, n in sorted(db.items(), key=lambda r: -r[1])]
+    checks = dimension_branches(mods, argument_checks=True)
+    lines.append(f"argument checks on the dimension (body only raises): {sum(checks.values())}")
     lf = long_functions(mods)
     lines.append(f"functions over 100 lines: {len(lf)}")
     lines += [f"  {m}.{n}: {k}" for m, n, k in lf]
