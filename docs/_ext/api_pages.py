@@ -211,7 +211,7 @@ def _split_ivars(lines: list[str]) -> None:
 # Docstrings of the current tree that Sphinx warns about, fixed while the documentation is
 # built until the source is fixed (each fix is a no-op then).
 _KNOWN_FIXES = {
-    "dolfinx_universal.curved.maps.transfinite_map": _fix_transfinite_map,
+    "dolfinx_universal.curved.maps_tri.transfinite_map": _fix_transfinite_map,
     "dolfinx_universal.moving.domain.MovingDomain": _fix_moving_domain,
 }
 
