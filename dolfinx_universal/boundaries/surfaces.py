@@ -718,7 +718,7 @@ class ImplicitSurface(Surface):
     @cached_property
     def _topology(self) -> tuple[int, int]:
         """:attr:`num_components` and :attr:`genus`: those given, checked against those
-        counted on the grid; the counted ones where none is given."""
+        counted on the grid; those counted where not given."""
         counted = self.counted_topology
         n, g = self.given_topology
         chosen = (counted[0] if n is None else n, counted[1] if g is None else g)
