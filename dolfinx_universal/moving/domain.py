@@ -22,7 +22,7 @@ from dolfinx_universal.boundaries.curves import Boundary
 from dolfinx_universal.cells.kit import cell_kernels
 from dolfinx_universal.conforming.classify import positively_cut
 from dolfinx_universal.conforming.quality import cell_quality
-from dolfinx_universal.conforming.universal import UniversalMesh
+from dolfinx_universal.conforming.universal import StraightMap, UniversalMesh
 from dolfinx_universal.core.arrays import all_rows, any_rows, write_cell_nodes
 from dolfinx_universal.core.collective import (
     MeshingError,
@@ -434,7 +434,7 @@ class MovingDomain:
         self.steps.append(report)
         return report
 
-    def _straight_map(self, boundary: Boundary):
+    def _straight_map(self, boundary: Boundary) -> StraightMap:
         """The straight map ``M_h`` of the step, after the coverage check of
         :meth:`from_motion`'s background (collective); its errors name the step."""
         if self._coverage is not None:
@@ -445,7 +445,7 @@ class MovingDomain:
             raise type(e)(f"step {len(self.steps)}: {e}", e.points, e.refinable) from None
 
     def _cells_to_rewrite(
-        self, sm
+        self, sm: StraightMap
     ) -> tuple[npt.NDArray[np.bool_], npt.NDArray[np.bool_], npt.NDArray[np.intp]]:
         """The cells whose nodes differ from the background's now (``near``: a vertex moved
         or on Gamma, as every curved cell has), the cells entering or leaving the domain
@@ -461,7 +461,7 @@ class MovingDomain:
 
     def _curved_nodes(
         self,
-        sm,
+        sm: StraightMap,
         boundary: Boundary,
         redo: npt.NDArray[np.intp],
         cut: npt.NDArray[np.intp],
@@ -534,7 +534,7 @@ class MovingDomain:
 
     def _set_domain(
         self,
-        sm,
+        sm: StraightMap,
         near: npt.NDArray[np.bool_],
         flip: npt.NDArray[np.bool_],
         redo: npt.NDArray[np.intp],
@@ -556,7 +556,7 @@ class MovingDomain:
 
     def _report(
         self,
-        sm,
+        sm: StraightMap,
         near: npt.NDArray[np.bool_],
         redo: npt.NDArray[np.intp],
         ratio: npt.NDArray[np.float64],
@@ -671,7 +671,7 @@ class MovingDomain:
                 refinable=False,
             )
 
-    def _quality(self, sm, near: npt.NDArray[np.bool_]) -> dict[str, float | int]:
+    def _quality(self, sm: StraightMap, near: npt.NDArray[np.bool_]) -> dict[str, float | int]:
         """Quality of the active triangles: computed where they moved or have a vertex
         outside, background values elsewhere (unmoved triangles with all vertices inside:
         those away from Gamma and some near it)."""
