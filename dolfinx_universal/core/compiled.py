@@ -58,7 +58,7 @@ _SOURCE = r"""
 #include <string.h>
 
 /* shape_quality of the counter-clockwise triangle (p, a, b), lab = |b - a|: the operations
-   of relax._star_quality, in its order; -1 where not positively oriented. */
+   of relax_tri._star_quality, in its order; -1 where not positively oriented. */
 static inline double star_quality(double px, double py, double ax, double ay, double bx,
                                   double by, double lab, double angle_scale,
                                   double radius_scale4)
@@ -122,7 +122,7 @@ void rate_candidates(const double *y, const int64_t *ea, const int64_t *eb,
 }
 
 /* The moves of the active vertices of the given colours, one colour after the other (the
-   serial colour passes of relax._Compass.move, decisions included): the entries of colour
+   serial colour passes of relax_tri._Compass.move, decisions included): the entries of colour
    k are bounds[k]..bounds[k+1], in vertex segments. Each active vertex rates its candidates
    (the worst over its entries), takes the first within `tie` of the best if that beats
    staying (candidate 0) by more than `tie`, and scales its step (by `grow` after a move at
@@ -257,9 +257,9 @@ void compass_candidates(const double *y, const int64_t *verts, const int64_t *ac
     }
 }
 
-/* ---- Tetrahedra: the directional relaxation of _dvr (same operations, same order) ---- */
+/* ---- Tetrahedra: the directional relaxation of relax_tet (same operations, same order) ---- */
 
-/* _dvr.cube_root: the exponent's bits over 3, then three Halley steps (x > 0, finite). */
+/* relax_tet.cube_root: the exponent's bits over 3, then three Halley steps (x > 0, finite). */
 static inline double cube_root(double x)
 {
     int small = x < 2.2250738585072014e-308;
@@ -283,7 +283,7 @@ static inline double cube_root(double x)
     return small ? t * 3.814697265625e-06 : t; /* 2^-18 */
 }
 
-/* _dvr.rating_quality of one rating. */
+/* relax_tet.rating_quality of one rating. */
 static inline double rating_quality(double r)
 {
     if (r == INFINITY)
@@ -293,7 +293,7 @@ static inline double rating_quality(double r)
     return cube_root(r);
 }
 
-/* _dvr._rating: s^2 / L^3 where s > 0 (and that positive), else -1. */
+/* relax_tet._rating: s^2 / L^3 where s > 0 (and that positive), else -1. */
 static inline double rating(double s, double L)
 {
     double r = L * L;
@@ -302,7 +302,7 @@ static inline double rating(double s, double L)
     return (s > 0.0) & (r > 0.0) ? r : -1.0;
 }
 
-/* _dvr.star_terms of one entry (vertex ip, facet ia, ib, ic of the points y) into
+/* relax_tet.star_terms of one entry (vertex ip, facet ia, ib, ic of the points y) into
    t[k * stride] for k = ux, uy, uz, nx, ny, nz, lsq, s, L. */
 static inline void star_terms(const double *y, int64_t ip, int64_t ia, int64_t ib,
                               int64_t ic, double k15, double *t, int64_t stride)
@@ -335,7 +335,7 @@ static inline void star_terms(const double *y, int64_t ip, int64_t ia, int64_t i
     t[8 * stride] = ux * ux + uy * uy + uz * uz + lsq;
 }
 
-/* _dvr.line_rating of entry j of the terms w at step length t along (dx, dy, dz). */
+/* relax_tet.line_rating of entry j of the terms w at step length t along (dx, dy, dz). */
 static inline double line_rating(const double *w, int64_t j, int64_t stride, double dx,
                                 double dy, double dz, double t)
 {
@@ -706,8 +706,8 @@ static void sort_by_key(const int64_t *key, int64_t m, int64_t nkeys, int64_t *s
         out[start[key[v]]++] = v;
 }
 
-/* The colours of the movable vertices and their star entries (_dvr.vertex_colours_graph
-   and _dvr._TetStars on one rank). csub (k, 4): the cells' corners in the numbering of the
+/* The colours of the movable vertices and their star entries (relax_common.vertex_colours_graph
+   and relax_tet._TetStars on one rank). csub (k, 4): the cells' corners in the numbering of the
    m movable vertices, -1 for the others; order: the vertices by decreasing priority.
    The Jones-Plassmann rounds: a vertex's round is one more than the latest of its
    neighbours of higher priority (0 without), and it takes the lowest colour that no
@@ -814,7 +814,7 @@ int64_t dvr_colour(const int64_t *csub, int64_t k, int64_t m, const double *prio
     return ncol;
 }
 
-/* The orientation of the k cells from the entries first[0..nf) (one per cell; _dvr.
+/* The orientation of the k cells from the entries first[0..nf) (one per cell; relax_tet.
    _TetStars._orient): the sign of s of its star terms. The entries e < ne of negatively
    oriented cells swap f1 and f2, those of flat ones (sign 0) are marked in flat; each cell
    is rated from its first entry (turned where s < 0) into rcell. */
@@ -981,7 +981,7 @@ void write_cell_nodes(const int64_t *cells, const int64_t *which, int64_t m,
 /* The distinct rows (bitwise) of x (n < 2^31 rows of dim <= 4 doubles), by open addressing
    in table (size a power of 2 above n, filled with -1): first lists the first row of each in
    order of appearance, inverse[i] the position of row i's in first. Returns their number
-   (_geometry.project_together). */
+   (core.arrays.project_together). */
 int64_t distinct_rows(const double *x, int64_t n, int64_t dim, int32_t *table, int64_t size,
                       int64_t *first, int64_t *inverse)
 {
@@ -1018,10 +1018,10 @@ int64_t distinct_rows(const double *x, int64_t n, int64_t dim, int32_t *table, i
     return count;
 }
 
-/* The slot columns of a degree-q dofmap (_lagrange.lagrange_geometry): row i of dofmap
+/* The slot columns of a degree-q dofmap (core.lagrange.lagrange_geometry): row i of dofmap
    (width columns, from column nv) is the row of slots (width - nv columns) of the code of
    cell i's vertices c2v (nv each), sum over i < j of nv^i where gv[c2v[i]] > gv[c2v[j]],
-   else nv^j (_lagrange._code). */
+   else nv^j (core.lagrange._code). */
 void dofmap_slots(int64_t m, int64_t nv, const int32_t *c2v, const int64_t *gv,
                   const int32_t *slots, int32_t *dofmap, int64_t width)
 {
@@ -1048,7 +1048,7 @@ void dofmap_slots(int64_t m, int64_t nv, const int32_t *c2v, const int64_t *gv,
 /* Adds (add = 1) or writes the first node of each of the ne entities per cell conn (rows
    of ne; NULL: entity c of cell c) to its n columns from column of the m rows of dofmap
    (width columns): n e + own for an owned entity (e < size), n e + ghost else
-   (_lagrange.lagrange_geometry's first_node). */
+   (core.lagrange.lagrange_geometry's first_node). */
 void dofmap_block(int64_t m, const int32_t *conn, int64_t ne, int64_t n, int64_t size,
                   int64_t own, int64_t ghost, int32_t *dofmap, int64_t width, int64_t column,
                   int64_t add)
@@ -1066,7 +1066,7 @@ void dofmap_block(int64_t m, const int32_t *conn, int64_t ne, int64_t n, int64_t
     }
 }
 
-/* The nodes of n entities of nv vertices (_lagrange.lagrange_geometry): each entity's
+/* The nodes of n entities of nv vertices (core.lagrange.lagrange_geometry): each entity's
    vertices e2v ordered by their global indices gv, then for each of its ns slots key's row
    summed in that order from the vertex positions xv (rows of 3) into the rows of 3 of
    owned (entities e < size: row e * ns + slot) or ghost (row (e - size) * ns + slot). */
