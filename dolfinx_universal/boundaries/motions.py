@@ -30,6 +30,11 @@ class _PlaneRotation:
         """Vectors ``(..., 2)`` rotated back."""
         return rotate(v, self.cs[0], -self.cs[1])
 
+    @staticmethod
+    def vector(v: npt.ArrayLike, name: str) -> Float:
+        """A centre or translation: two finite numbers."""
+        return vector(v, name, 2)
+
 
 class _SpaceRotation:
     """A rotation of space: ``rotation`` (see :func:`rotation_matrix`), or by ``angle``
@@ -50,21 +55,21 @@ class _SpaceRotation:
         """Vectors ``(..., 3)`` rotated back."""
         return v @ self.matrix
 
+    @staticmethod
+    def vector(v: npt.ArrayLike, name: str) -> Float:
+        """A centre or translation: three finite numbers; two zeros (the planar default of
+        the arguments) are the origin."""
+        a = np.asarray(v, dtype=np.float64).reshape(-1)
+        if a.shape == (2,) and not a.any():
+            return np.zeros(3)
+        return vector(v, name, 3)
+
 
 _ROTATIONS: dict[int, type[_PlaneRotation] | type[_SpaceRotation]] = {
     2: _PlaneRotation,
     3: _SpaceRotation,
 }
 """The rotation of a motion of a curve (2) or surface (3), by the dimension of the space."""
-
-
-def _offset(v: npt.ArrayLike, name: str, dim: int) -> Float:
-    """A centre or translation of ``dim`` finite numbers; two zeros (the planar default of
-    the arguments) are the origin of space too."""
-    a = np.asarray(v, dtype=np.float64).reshape(-1)
-    if len(a) == 2 < dim and not a.any():
-        return np.zeros(dim)
-    return vector(v, name, dim)
 
 
 class RigidMotion(Boundary):
@@ -105,8 +110,8 @@ class RigidMotion(Boundary):
         self._rotation = _ROTATIONS[self.gdim](self.angle, rotation)
         self.rotation = self._rotation.matrix
         """The rotation matrix ``R`` ``(gdim, gdim)``."""
-        self.center = _offset(center, "center", self.gdim)
-        self.translation = _offset(translation, "translation", self.gdim)
+        self.center = self._rotation.vector(center, "center")
+        self.translation = self._rotation.vector(translation, "translation")
 
     def moved(
         self,
