@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 from mpi4py import MPI
@@ -172,6 +173,48 @@ def test_errors_no_size_can_fix():
         du.mesh_domain(comm, du.Circle((0, 0), 1), 0.2, box=[[-0.5, -2], [2, 2]])
     with pytest.raises(ValueError, match="h must be positive"):
         du.mesh_domain(comm, du.Circle((0, 0), 1), float("nan"))
+
+
+def test_certificate_prints_the_angle_it_verified():
+    """A conditioning angle just below 90 degrees is printed below 90, with the digits that
+    takes: never "90.00 deg (< 90 needed)"; tetrahedra need at most 90, and say so."""
+    cert = du.mesh_domain(comm, du.Circle((0, 0), 1), 0.5).certificate
+    for angle, shown in [(89.9991, "89.9991"), (89.99999999, "89.99999999"), (67.123, "67.12")]:
+        text = str(dataclasses.replace(cert, max_conditioning_angle_deg=angle))
+        assert f"conditioning angles <= {shown} deg (< 90 needed)" in text
+    # Tetrahedra may have right angles at the positive faces (BCC): at most 90 is needed.
+    tet = dataclasses.replace(cert, tdim=3, background="graded BCC octree")
+    text = str(dataclasses.replace(tet, max_conditioning_angle_deg=90.0))
+    assert "conditioning angles <= 90.00 deg (<= 90 needed" in text and "< 90 needed" not in text
+
+
+@pytest.mark.parametrize("c", [1e5, 1e6])
+def test_domains_far_from_the_origin(c):
+    """A circle and a sphere centred at (c, c(, c)) mesh as they do at the origin (the
+    sphere raised ``feature sizes must be positive`` from 1e5 on)."""
+    at_origin = du.mesh_domain(comm, du.Circle((0, 0), 1.0), 0.5).certificate
+    cert = du.mesh_domain(comm, du.Circle((c, c), 1.0), 0.5).certificate
+    assert cert.num_cells == at_origin.num_cells and cert.refinement_rounds == 0
+    cert = du.mesh_domain(comm, du.Sphere((c, c, c), 1.0), 0.5).certificate
+    assert cert.num_pieces == 1 and cert.num_loops == 1
+    assert cert.min_feature_over_h >= 3.0 * (1 - 1e-6) and cert.min_angle_deg > 30.0
+
+
+def test_touching_bodies_are_named():
+    """Spheres that touch (two bodies; a body and its container) need a size that no
+    max_cells allows at the contact: the error names the components and the place, not only
+    the cell count (it said "the geometry asks for about 1.3e13 background cells" near an
+    unrelated sample)."""
+    pairs = [
+        (du.Domain(None, [du.Sphere((0, 0, 0), 1), du.Sphere((2, 0, 0), 1)]), "body 0 and body 1"),
+        (du.Domain(du.Sphere((0, 0, 0), 2), [du.Sphere((1, 0, 0), 1)]), "the container and body 1"),
+    ]
+    for domain, names in pairs:
+        with pytest.raises(du.MeshingError, match=f"{names} touch or nearly touch") as info:
+            du.mesh_domain(comm, domain, 0.5)
+        assert "move them apart" in str(info.value) and not info.value.refinable
+        contact = np.array([[1.0, 0.0, 0.0]]) * (1 if "body 0" in names else 2)
+        assert np.linalg.norm(info.value.points - contact) < 0.1
 
 
 def test_given_box_channel():

@@ -53,6 +53,18 @@ def test_sphere(nearest):
 
 
 @pytest.mark.parametrize("nearest", BOTH)
+@pytest.mark.parametrize("c", [1e5, 1e6])
+def test_sphere_far_from_the_origin(nearest, c):
+    """A unit sphere centred at (c, c, c): its coordinates' rounding (1.5e-11 at 1e5) is
+    above the balls' relative tolerance 1e-12 r_max, and a ball tangent at p found p itself
+    inside it (feature sizes 0 before, ``ValueError: feature sizes must be positive`` in
+    mesh_domain); the radii are those at the origin, to the coordinates' rounding."""
+    sf = surface_feature_size(Sphere((c, c, c), 1.0), 0.125, nearest=nearest)
+    assert np.allclose(sf.r_inside, 1.0, rtol=0, atol=1e-6 if nearest == "surface" else 0.02)
+    assert np.allclose(sf.r_outside, sf.r_max)
+
+
+@pytest.mark.parametrize("nearest", BOTH)
 def test_torus_tube_and_hole(nearest):
     """Inside: the core circle, 0.35 away. Outside: the axis; on the inner equator the ball
     reaches it at R - r = 0.65 (the hole is 1.3 across); the outer equator and the top of

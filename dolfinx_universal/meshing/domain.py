@@ -6,6 +6,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from decimal import ROUND_CEILING, Decimal
 from typing import Any, NamedTuple
 
 from mpi4py import MPI
@@ -79,15 +80,24 @@ class _Words(NamedTuple):
     background: str
     loops: str
     angles: str
+    conditioning: str
+    """What the conditioning angles must satisfy."""
 
 
 _WORDS = {
-    2: _Words("cells", "a graded background", "closed loop(s), one per curve", "angles"),
+    2: _Words(
+        "cells",
+        "a graded background",
+        "closed loop(s), one per curve",
+        "angles",
+        "< 90 needed",
+    ),
     3: _Words(
         cell_kernels(3).plural,
         "the {} background",
         "closed surface(s), one per surface",
         "dihedral angles",
+        "<= 90 needed: the right angles of BCC allowed",
     ),
 }
 
@@ -100,7 +110,9 @@ class Certificate:
     """
 
     max_conditioning_angle_deg: float
-    """Largest conditioning angle (the method needs < 90)."""
+    """Largest conditioning angle: below 90 for triangles; at most 90 for tetrahedra (the
+    largest dihedral angle at a positive face; the right angles of BCC backgrounds are
+    allowed)."""
     min_feature_over_h: float
     """Smallest ratio of the local feature size of Gamma (distance to the medial axis:
     curvature, necks, gaps) to the background size there."""
@@ -141,7 +153,7 @@ class Certificate:
     """Topological dimension: 2 (triangles) or 3 (tetrahedra)."""
 
     def __str__(self) -> str:
-        cells, bg, loops, angles = _WORDS[self.tdim]
+        cells, bg, loops, angles, conditioning = _WORDS[self.tdim]
         bg = bg.format(self.background)
         lines = [
             f"universal mesh certificate: {self.num_cells} {cells} (degree {self.degree}"
@@ -149,7 +161,8 @@ class Certificate:
             + f" from {bg} of {self.num_background_cells} {cells}, "
             f"h in [{self.h_min:.3g}, {self.h_max:.3g}]",
             f"  Gamma_h: {self.num_loops} {loops}; {self.num_pieces} connected piece(s)",
-            f"  conditioning angles <= {self.max_conditioning_angle_deg:.2f} deg (< 90 needed)",
+            f"  conditioning angles <= {_below(self.max_conditioning_angle_deg, 90.0)} deg "
+            f"({conditioning})",
             f"  feature size / h >= {self.min_feature_over_h:.3g}, "
             f"radius of curvature / h >= {self.min_curvature_radius_over_h:.3g}",
             f"  {angles} in [{self.min_angle_deg:.2f}, {self.max_angle_deg:.2f}] deg "
@@ -478,7 +491,7 @@ def _refinement_rounds(
     rounds: list[str] = []
     fallback: tuple[_Attempt, int] | None = None  # the octree's while "auto" tries A15
     while True:
-        plan.check_size(max_cells, rounds)
+        plan.check_size(max_cells, rounds, steps.boundary)
         background = steps.build(plan)
         try:
             done = steps.attempt(plan, background)
@@ -554,6 +567,22 @@ def _certificate(
         background=plan.name,
         tdim=tdim,
     )
+
+
+def _below(value: float, limit: float, digits: int = 2) -> str:
+    """``value`` with ``digits`` decimals; where that prints ``limit`` or more for a value
+    below ``limit``, rounded up at as many more decimals as it takes to print below
+    ``limit``: an upper bound of ``value`` that does not contradict ``< limit`` (89.9991
+    against 90: ``"89.9991"``, not ``"90.00"``)."""
+    text = f"{value:.{digits}f}"
+    if not (value < limit and float(text) >= limit):
+        return text
+    exact = Decimal(repr(float(value)))
+    for more in range(digits + 1, 18):
+        text = str(exact.quantize(Decimal(1).scaleb(-more), rounding=ROUND_CEILING))
+        if float(text) < limit:
+            return text
+    return repr(float(value))
 
 
 def _short(text: str, n: int = 160) -> str:

@@ -24,6 +24,7 @@ __all__ = [
     "check_components",
     "checked_box",
     "default_box",
+    "narrow_gap",
     "on_root",
 ]
 
@@ -151,22 +152,65 @@ class Plan:
         self.refine(places)
         return self, ""
 
-    def check_size(self, max_cells: float, rounds: list[str]) -> None:
-        """Raise when the background would exceed ``max_cells``."""
+    def check_size(
+        self, max_cells: float, rounds: list[str], boundary: Boundary | None = None
+    ) -> None:
+        """Raise when the background would exceed ``max_cells``, naming where the smallest
+        size is needed (of equal sizes, where the feature size is smallest) and, given the
+        ``boundary``, the components of a Domain that nearly touch there
+        (:func:`narrow_gap`)."""
         estimate = self.estimate()
         if estimate <= max_cells:
             return
         current = self.sizes()
-        i = int(np.argmin(current))
-        raise MeshingError(
-            f"the geometry asks for about {estimate:.3g} background cells (more than "
-            f"max_cells = {max_cells:.3g}): the smallest size needed is "
-            f"{current[i]:.3g} near {where(self.points[i : i + 1])}"
-            + (f" after {len(rounds)} refinement rounds ({'; '.join(rounds)})" if rounds else "")
-            + "; raise max_cells or simplify the geometry there",
-            self.points[i : i + 1],
-            refinable=False,
-        )
+        i = int(np.lexsort((self.feature, current))[0])
+        at = self.points[i : i + 1]
+        gap = "" if boundary is None else narrow_gap(boundary, at, float(self.feature[i]))
+        after = f" after {len(rounds)} refinement rounds ({'; '.join(rounds)})" if rounds else ""
+        if gap:
+            message = (
+                f"{gap}: the gap asks for a size of {current[i]:.3g} there, about "
+                f"{estimate:.3g} background cells (more than max_cells = {max_cells:.3g})"
+                f"{after}; the components of a Domain must lie apart from each other: move "
+                "them apart"
+            )
+        else:
+            message = (
+                f"the geometry asks for about {estimate:.3g} background cells (more than "
+                f"max_cells = {max_cells:.3g}): the smallest size needed is "
+                f"{current[i]:.3g} near {where(at)}{after}; raise max_cells or simplify the "
+                "geometry there"
+            )
+        raise MeshingError(message, at, refinable=False)
+
+
+def narrow_gap(boundary: Boundary, point: Float, feature: float) -> str:
+    """Which components of a :class:`~dolfinx_universal.boundaries.curves.Domain` touch or
+    nearly touch at ``point`` (``(1, gdim)``, on Gamma, where the local feature size is
+    ``feature``): the component through the point and the nearest other one, where that is
+    within ``2.5 feature`` (a gap of width ``g`` has feature size about ``g / 2``); ``""``
+    where none is (a thin part or high curvature of one component)."""
+    if not isinstance(boundary, Domain) or len(boundary.components) < 2:
+        return ""
+    p = np.asarray(point, dtype=np.float64).reshape(1, -1)
+    names = [
+        f"body {k}" if body else "the container" for k, (_, body) in enumerate(boundary.components)
+    ]
+    try:
+        near = [np.asarray(b.closest_point(p), dtype=np.float64) for b, _ in boundary.components]
+    except (RuntimeError, ValueError, FloatingPointError):  # no projection found: no note
+        return ""
+    dist = np.array([float(np.linalg.norm(p - q.reshape(p.shape))) for q in near])
+    own = int(np.argmin(dist))
+    dist[own] = np.inf
+    other = int(np.argmin(dist))
+    if not dist[other] <= 2.5 * feature:
+        return ""
+    first, second = sorted((own, other))
+    return (
+        f"{names[first]} and {names[second]} touch or nearly touch near {where(p)} (they "
+        f"come within {dist[other]:.3g} of each other there)"
+    )
 
 
 class UserSize:

@@ -57,6 +57,8 @@ MAX_ITERATIONS = 60
 _EXCLUDE = 3.0  # first step: samples within this many spacings of p do not shrink the ball
 _FIRST_NEIGHBOURS = 8  # neighbours of the first query, to skip those near p
 _RTOL = 1e-12  # a ball is empty when q is within _RTOL (r + r_max) of its sphere
+_ROUNDING = 16 * float(np.finfo(np.float64).eps)  # ... or within this fraction of the
+# coordinates' magnitude (far from the origin their rounding exceeds _RTOL r_max)
 _CHUNK = 2048  # centres per closest-point call
 
 
@@ -220,7 +222,10 @@ def shrinking_ball_radii(
     decreases and stays at least the true one (``q`` is outside the true ball, which is
     nested in every larger one tangent at ``p``). All balls step together; only those
     that shrank are queried again. A ball counts as empty when ``q`` is within
-    ``1e-12 r + 1e-12 r_max`` of its sphere.
+    ``1e-12 r + 1e-12 r_max`` of its sphere, or within the rounding of the coordinates
+    (``16 eps`` times their magnitude, a few units in the last place: more than
+    ``1e-12 r_max`` for a unit sphere centred beyond about 1e3; without it, a ball tangent
+    at ``p`` far from the origin could find ``p`` itself inside and shrink to nothing).
 
     Parameters
     ----------
@@ -246,7 +251,8 @@ def shrinking_ball_radii(
     owner = np.concatenate([np.arange(n), np.arange(n)])  # inside balls, then outside ones
     side = np.concatenate([np.full(n, -1.0), np.full(n, 1.0)])
     r = np.full(2 * n, float(r_max))
-    slack = _RTOL * float(r_max)
+    scale = float(np.abs(x).max(initial=0.0)) + float(r_max)
+    slack = max(_RTOL * float(r_max), _ROUNDING * scale)
     active = np.arange(2 * n)
     for step in range(max_iterations):
         if not active.size:
