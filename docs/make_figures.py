@@ -78,7 +78,7 @@ def overview_meshes(comm=MPI.COMM_WORLD):
 #: The domain and background of the method's stages.
 METHOD_BOX = ((-1.5, -1.75), (1.95, 1.75))
 #: What the method's figures show of it.
-METHOD_VIEW = ((-0.95, -1.18), (1.4, 1.18))
+METHOD_VIEW = ((-1.1, -1.25), (1.95, 1.25))  # room for the inset and legend
 METHOD_H = 0.16
 METHOD_DEGREE = 3
 
@@ -216,7 +216,7 @@ def _panel(path: Path, draw, title: str, handles=None) -> None:
     legend lower right) and in an inset (upper right) zooming on WINDOW."""
     from dolfinx_universal.plotting import add_inset
 
-    fig, (ax,) = _figure()
+    fig, (ax,) = _figure(size=(6.4, 4.6))
     draw(ax, 0.4)
     (x0, y0), (x1, y1) = METHOD_VIEW
     ax.set_xlim(x0, x1), ax.set_ylim(y0, y1)
@@ -234,7 +234,7 @@ def _panel(path: Path, draw, title: str, handles=None) -> None:
             a.get_legend().remove()
         a.set_xlabel(""), a.set_ylabel(""), a.set_title("")
 
-    add_inset(ax, WINDOW, zoom, size=0.36, loc="upper right")
+    add_inset(ax, WINDOW, zoom, size=0.32, loc="upper right")
     _save(fig, path)
 
 
