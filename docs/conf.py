@@ -76,7 +76,8 @@ html_theme_options = {
     "navbar_align": "left",
     "show_toc_level": 2,
     "navigation_with_keys": False,
-    "secondary_sidebar_items": ["page-toc"],
+    # The page's table of contents, except where the API table needs the width.
+    "secondary_sidebar_items": {"**": ["page-toc"], "api": []},
     "footer_start": ["copyright"],
     "footer_end": ["sphinx-version"],
 }

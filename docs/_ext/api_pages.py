@@ -43,6 +43,9 @@ def _summary(obj: object) -> str:
     if not doc:
         return ""
     first = doc.split("\n\n")[0].replace("\n", " ").strip()
+    # reST in a Markdown table: a role becomes its target as code, ``x`` becomes `x`.
+    first = re.sub(r":(?:\w+:)?\w+:`~?([^`<]*?)\s*(?:<[^`>]*>)?`", r"`\1`", first)
+    first = re.sub(r"``([^`]+)``", r"`\1`", first)
     return strip_internal_references(first).replace("|", "\\|")
 
 
