@@ -211,3 +211,86 @@ def test_bad_box_and_tiny_h_get_clear_errors_at_once():
     for kind in ("auto", "a15"):
         with pytest.raises(du.MeshingError, match=r"h = 0.001 asks for at least 2.74e\+09"):
             du.mesh_domain(comm, ball, 1e-3, tet_background=kind)
+
+
+def _loose_ball(r: float = 0.5) -> du.ImplicitSurface:
+    """A ball of radius ``r`` given as a level set in the loose box [-2, 2]^3: the default
+    box (the surface's bounding box plus margins) holds 4.5e5 A15 tetrahedra of the target
+    size r / 3, the box of its samples 4.6e4."""
+    return du.ImplicitSurface(
+        lambda x: (x**2).sum(axis=1) - r * r, lambda x: 2 * x, [[-2.0] * 3, [2.0] * 3], genus=0
+    )
+
+
+def test_auto_keeps_its_angles_in_the_box_of_gamma(monkeypatch):
+    """``tet_background="auto"`` whose octree misses its dihedral angles
+    (:data:`AUTO_DIHEDRAL`, here narrowed to (39.5, 110.5): the octree gives [38.9, 110.2])
+    takes the A15 background where the default box's exceeds ``max_cells`` but that of
+    Gamma's samples does not (an implicit surface in a loose box: the octree's angles were
+    kept, down to 19 degrees on superellipsoids at degree 3)."""
+    from dolfinx_universal.meshing import plans_tet
+
+    monkeypatch.setattr(plans_tet, "AUTO_DIHEDRAL", (39.5, 110.5))
+    md = du.mesh_domain(comm, _loose_ball(), 0.8, max_cells=2e5)
+    c = md.certificate
+    assert c.background == "A15 uniform" and c.refinement_rounds == 1
+    assert "graded BCC octree (auto keeps it within (39.5, 110.5)), then the A15" in str(c)
+    assert 39.5 <= c.min_angle_deg and c.max_angle_deg <= 110.5
+    assert md.background.topology.index_map(3).size_global < 1e5  # the samples' box
+
+
+def test_auto_refines_where_the_octree_misses_its_angles(monkeypatch):
+    """Where no A15 background fits ``max_cells`` either, the octree is refined around the
+    tetrahedra that miss the angles; the best mesh is kept where the next octree would
+    exceed ``max_cells`` (the record says so)."""
+    from dolfinx_universal.meshing import plans_tet
+
+    monkeypatch.setattr(plans_tet, "AUTO_DIHEDRAL", (39.5, 110.5))
+    md = du.mesh_domain(comm, _loose_ball(), 0.8, max_cells=4.5e4)
+    c = md.certificate
+    assert c.background == "graded BCC octree" and c.refinement_rounds == 1
+    assert c.refinements[0].endswith(
+        "refined there (the graded BCC octree would exceed max_cells; the octree's mesh kept)"
+    )
+
+
+def _superellipsoid(p: float, axes: tuple[float, float, float], half: float):
+    """``|y/a|^p + |y/b|^p + |y/c|^p = 1`` for ``y = Q^T x`` (a fixed random rotation ``Q``),
+    as an implicit surface in the box [-half, half]^3."""
+    q = np.random.default_rng(0).normal(size=4)
+    w, x, y, z = q / np.linalg.norm(q)
+    Q = np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+    a = np.asarray(axes)
+
+    def phi(pts):
+        return (np.abs(pts @ Q / a) ** p).sum(axis=1) - 1
+
+    def grad(pts):
+        t = pts @ Q / a
+        return (p * np.abs(t) ** (p - 1) * np.sign(t) / a) @ Q.T
+
+    return du.ImplicitSurface(phi, grad, [[-half] * 3, [half] * 3], genus=0)
+
+
+@pytest.mark.parametrize(
+    "p, axes", [(3.57, (0.60, 0.89, 0.36)), (3.82, (0.41, 0.86, 0.88))], ids=["p357", "p382"]
+)
+def test_auto_has_an_a15_fallback_at_degree_3(p, axes):
+    """The superellipsoids on which ``auto`` at degree 3 (sizes feature / 4) kept the octree
+    with dihedral angles down to 19 degrees: given in a loose box, the A15 background of the
+    default box exceeds ``max_cells``, which kept the octree's mesh whatever its angles;
+    the A15 background in the box of Gamma's samples fits and is the fallback."""
+    from dolfinx_universal.meshing.plans_tet import GradedTetPlan, tet_plan
+
+    surface = _superellipsoid(p, axes, 2.0)
+    plan = tet_plan(comm, surface, 0.25, 3, None, 3.0, None, "auto", 5e6)
+    assert isinstance(plan, GradedTetPlan) and plan.auto
+    assert plan.alternative is not None and plan.alternative.estimate() > 5e6
+    assert plan.compact is not None and plan.fallback(5e6) is plan.compact
+    assert plan.compact.size == plan.alternative.size

@@ -309,7 +309,10 @@ def mesh_domain(
         relaxation are a few degrees better); where the octree's dihedral angles leave
         :data:`~dolfinx_universal.meshing.plans_tet.AUTO_DIHEDRAL`, the A15
         background of the same smallest size instead (one more round, if within
-        ``max_cells``; if that fails, the octree's mesh is kept).
+        ``max_cells``, else in the box of Gamma's samples if that is; if A15 fails, the
+        octree's mesh is kept); where no A15 background fits, the octree refined around the
+        tetrahedra that miss the angles, the best mesh kept where the next background would
+        exceed ``max_cells`` or ``max_rounds`` or fails.
     size_field
         A user size field, ``(n, gdim) -> (n,)`` target edge lengths (``inf``: no
         constraint), the same function on every rank (e.g.
@@ -483,38 +486,29 @@ def _refinement_rounds(
 ) -> tuple[_Attempt, list[str]]:
     """The rounds of :func:`mesh_domain` (collective): build the plan's background and
     attempt it; where a check fails, refine the plan around the places it names (at most
-    ``max_rounds`` times, :meth:`~dolfinx_universal.meshing.plans.Plan.refined`); where the
-    mesh misses the plan's target and the plan has an alternative
-    (``tet_background="auto"`` chose the octree and its angles leave
-    :data:`~dolfinx_universal.meshing.plans_tet.AUTO_DIHEDRAL`), try that (keeping the first
-    mesh if it fails). Returns the round that passed and the record of the rounds."""
+    ``max_rounds`` times, :meth:`~dolfinx_universal.meshing.plans.Plan.refined`).
+
+    Where a mesh passes every check but misses the plan's target
+    (:meth:`~dolfinx_universal.meshing.plans.Plan.misses_target`: ``tet_background="auto"``
+    chose the octree and its dihedral angles leave
+    :data:`~dolfinx_universal.meshing.plans_tet.AUTO_DIHEDRAL`), try the plan's alternative
+    (A15) where it stays within ``max_cells``, else refine the plan around the cells that
+    miss it; the best mesh so far is kept where the next round fails or would exceed
+    ``max_cells`` or ``max_rounds``. Returns the round that passed and the record of the
+    rounds."""
     rounds: list[str] = []
-    fallback: tuple[_Attempt, int] | None = None  # the octree's while "auto" tries A15
+    kept: tuple[_Attempt, int] | None = None  # the best valid mesh while a round aims higher
     while True:
+        if kept is not None and plan.estimate() > max_cells:
+            return _keep(kept, rounds, f"the {plan.name} would exceed max_cells")
         plan.check_size(max_cells, rounds, steps.boundary)
         background = steps.build(plan)
         try:
             done = steps.attempt(plan, background)
-            quality = done.quality
-            alt = plan.alternative
-            if alt is None or not plan.misses_target(quality) or alt.estimate() > max_cells:
-                return done, rounds
-            fallback = (done, len(rounds))
-            rounds.append(
-                f"round {len(rounds) + 1}: dihedral angles in "
-                f"[{quality['theta_min_deg']:.3g}, {quality['theta_max_deg']:.3g}] deg on the "
-                f"{plan.name} (auto keeps it within {plans_tet.AUTO_DIHEDRAL}), then the "
-                f"{alt.name} background of size {float(alt.sizes().min()):.3g}"
-            )
-            plan.alternative = None
-            plan = alt
         except MeshingError as e:
             first = str(e).splitlines()[0]
-            if fallback is not None:  # the alternative failed where the first mesh was valid
-                kept, k = fallback
-                rounds[k] += f" (which failed: {_short(first)}; the octree's mesh kept)"
-                del rounds[k + 1 :]
-                return kept, rounds
+            if kept is not None:  # a valid mesh is known: keep it
+                return _keep(kept, rounds, f"which failed: {_short(first)}")
             if not e.refinable or len(e.points) == 0:
                 raise
             if len(rounds) >= max_rounds:
@@ -528,6 +522,57 @@ def _refinement_rounds(
             rounds.append(f"round {len(rounds) + 1}: {_short(first)}")
             plan, note = plan.refined(e.points, comm, max_cells)
             rounds[-1] += note
+            continue
+        quality = done.quality
+        if not plan.misses_target(quality):
+            return done, rounds
+        kept = _better(kept, (done, len(rounds)))
+        missed = (
+            f"round {len(rounds) + 1}: dihedral angles in "
+            f"[{quality['theta_min_deg']:.3g}, {quality['theta_max_deg']:.3g}] deg on the "
+            f"{plan.name} (auto keeps it within {plans_tet.AUTO_DIHEDRAL})"
+        )
+        alt = plan.fallback(max_cells)
+        if alt is not None:
+            rounds.append(
+                f"{missed}, then the {alt.name} background of size {float(alt.sizes().min()):.3g}"
+            )
+            plan.alternative = None
+            plan = alt
+            continue
+        places = plan.target_misses(done.cm)
+        if len(places) == 0 or len(rounds) >= max_rounds:
+            return _keep(kept, rounds, "")
+        rounds.append(f"{missed}, refined there")
+        plan.alternative = None  # (A15 exceeds max_cells)
+        plan, note = plan.refined(places, comm, max_cells)
+        rounds[-1] += note
+
+
+def _better(kept: tuple[_Attempt, int] | None, new: tuple[_Attempt, int]) -> tuple[_Attempt, int]:
+    """Of two valid rounds (with their places in the record), the one whose dihedral
+    angles come closer to :data:`~dolfinx_universal.meshing.plans_tet.AUTO_DIHEDRAL` (the
+    earlier on a tie)."""
+    if kept is None:
+        return new
+    lo, hi = plans_tet.AUTO_DIHEDRAL
+
+    def margin(a: _Attempt) -> float:
+        return min(a.quality["theta_min_deg"] - lo, hi - a.quality["theta_max_deg"])
+
+    return new if margin(new[0]) > margin(kept[0]) else kept
+
+
+def _keep(kept: tuple[_Attempt, int], rounds: list[str], why: str) -> tuple[_Attempt, list[str]]:
+    """The kept octree round and the record up to it, the rounds after it (and ``why``
+    they stopped) in a note."""
+    done, k = kept
+    if k >= len(rounds):  # the last round's own mesh: nothing after it
+        return done, rounds
+    notes = [r.split(": ", 1)[-1] for r in rounds[k + 1 :]] + ([why] if why else [])
+    rounds[k] += f" ({''.join(n + '; ' for n in notes)}the octree's mesh kept)"
+    del rounds[k + 1 :]
+    return done, rounds
 
 
 def _certificate(

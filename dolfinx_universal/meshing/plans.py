@@ -13,6 +13,7 @@ import numpy.typing as npt
 from dolfinx import mesh as dmesh
 
 from dolfinx_universal.boundaries.curves import Boundary, Domain
+from dolfinx_universal.conforming.universal import ConformingMesh
 from dolfinx_universal.core.arrays import Float
 from dolfinx_universal.core.collective import MeshingError, collective_call, where
 from dolfinx_universal.sizing.fields import SizeFunction
@@ -145,6 +146,17 @@ class Plan:
         :attr:`alternative` promises (``quality``: that of
         :func:`~dolfinx_universal.conforming.quality.quality_report`)."""
         return False
+
+    def fallback(self, max_cells: float) -> Plan | None:
+        """The plan to try where a mesh of this one misses its target: :attr:`alternative`
+        where it stays within ``max_cells``."""
+        alt = self.alternative
+        return alt if alt is not None and alt.estimate() <= max_cells else None
+
+    def target_misses(self, cm: ConformingMesh) -> Float:
+        """Centroids of the cells of ``cm`` that miss the quality this plan aims at
+        (:meth:`misses_target`), the same on every rank (collective): none here."""
+        return np.zeros((0, cm.mesh.geometry.dim))
 
     def refined(self, places: Float, comm: MPI.Comm, max_cells: float) -> tuple[Plan, str]:
         """The plan of the next round after a refinable failure near ``places``

@@ -14,6 +14,8 @@ from scipy.spatial import cKDTree
 from dolfinx_universal.backgrounds.graded_tet import BandSizeField, GradedOctree, graded_octree
 from dolfinx_universal.backgrounds.lattice_tet import a15_mesh, a15_num_cells
 from dolfinx_universal.boundaries.curves import Boundary
+from dolfinx_universal.cells.kit import cell_kernels
+from dolfinx_universal.conforming.universal import ConformingMesh
 from dolfinx_universal.core.arrays import Float
 from dolfinx_universal.core.collective import MeshingError
 from dolfinx_universal.meshing.plans import (
@@ -73,7 +75,9 @@ AUTO_DIHEDRAL = (30.0, 125.0)
 it chose gives a smaller or larger one (its uniform bands are BCC, which the relaxation
 cannot always bring to these), it conforms the A15 background of the same smallest size
 instead, if that stays within ``max_cells`` (A15 met them on every sphere, ellipsoid and
-torus of ``demos/quality_3d.py``)."""
+torus of ``demos/quality_3d.py``), in the box of Gamma's samples if only that does; else
+it refines the octree around the tetrahedra that miss them
+(:meth:`GradedTetPlan.target_misses`)."""
 
 
 def tet_plan(
@@ -124,7 +128,9 @@ def tet_plan(
     else:
         choice = graded if graded.count(comm) < AUTO_RATIO * uniform.count() else uniform
     if choice is graded:
-        graded.alternative = uniform
+        graded.alternative, graded.auto = uniform, True
+        if box is None:  # the same A15 background in the box of Gamma's samples
+            graded.compact = UniformPlan.around(graded.points, uniform, relaxation_factor)
     return choice
 
 
@@ -174,6 +180,16 @@ class UniformPlan(Plan):
         size = plan.smallest
         box_arr = checked_box(boundary, plan.points, size, box, relaxation_factor)
         return cls(box_arr, size, plan.points, plan.feature, plan.rho)
+
+    @classmethod
+    def around(cls, points: Float, plan: UniformPlan, relaxation_factor: float) -> UniformPlan:
+        """``plan`` in the box of ``points`` (samples of Gamma) enlarged as
+        :func:`~dolfinx_universal.meshing.plans.default_box` enlarges a bounding box: smaller
+        than ``plan``'s where the boundary's bounding box is loose (an implicit surface's
+        is the box given to it)."""
+        margin = (relaxation_factor + 2.0) * plan.size
+        box = np.array([points.min(axis=0) - margin, points.max(axis=0) + margin])
+        return cls(box, plan.size, plan.points, plan.feature, plan.rho)
 
     def count(self) -> int:
         """Tetrahedra of the background."""
@@ -243,6 +259,12 @@ class GradedTetPlan(Plan):
         self.comm: MPI.Comm | None = None
         self.alternative: UniformPlan | None = None
         """The A15 plan ``tet_background="auto"`` passed over (see :meth:`refined`)."""
+        self.compact: UniformPlan | None = None
+        """:attr:`alternative` in the box of Gamma's samples (no box given; see
+        :meth:`fallback`)."""
+        self.auto = False
+        """Whether ``tet_background="auto"`` chose this octree over A15: its meshes then
+        aim at :data:`AUTO_DIHEDRAL` (:meth:`misses_target`)."""
         self.user: UserSize | None = None
         """The user's ``size_field``: the octree's size is its minimum with :meth:`field`."""
 
@@ -415,10 +437,29 @@ class GradedTetPlan(Plan):
         self._tree = None
 
     def misses_target(self, quality: dict) -> bool:
-        """Whether the dihedral angles leave :data:`AUTO_DIHEDRAL` (what the A15
-        :attr:`alternative` keeps)."""
+        """Whether ``tet_background="auto"`` chose this octree (:attr:`auto`) and the
+        dihedral angles leave :data:`AUTO_DIHEDRAL` (what the A15 background keeps)."""
         lo, hi = AUTO_DIHEDRAL
-        return bool(quality["theta_min_deg"] < lo or quality["theta_max_deg"] > hi)
+        return self.auto and (quality["theta_min_deg"] < lo or quality["theta_max_deg"] > hi)
+
+    def fallback(self, max_cells: float) -> Plan | None:
+        """The A15 :attr:`alternative` where it stays within ``max_cells``, else the same
+        in the box of Gamma's samples (:attr:`compact`) where that does, else none."""
+        for plan in (self.alternative, self.compact if self.alternative is not None else None):
+            if plan is not None and plan.estimate() <= max_cells:
+                return plan
+        return None
+
+    def target_misses(self, cm: ConformingMesh) -> Float:
+        """Centroids of the tetrahedra of ``cm`` whose dihedral angles leave
+        :data:`AUTO_DIHEDRAL`, gathered from every rank (collective)."""
+        nco = cm.mesh.topology.index_map(3).size_local
+        cells, x = cm.cells[:nco], cm.x
+        theta = np.degrees(cell_kernels(3).angles(x, cells))
+        lo, hi = AUTO_DIHEDRAL
+        bad = (theta.min(axis=1) < lo) | (theta.max(axis=1) > hi)
+        mine = x[cells[bad]].mean(axis=1).reshape(-1, 3)
+        return np.concatenate(cm.mesh.comm.allgather(mine)).reshape(-1, 3)
 
     def refined(self, places: Float, comm: MPI.Comm, max_cells: float) -> tuple[Plan, str]:
         """The plan of the next round after a refinable failure near ``places`` (collective),
