@@ -87,6 +87,20 @@ html_sidebars = {
     page: [] for page in ("index", "install", "method", "mpi", "gallery", "measurements")
 }
 
+# The contents of the start page (its toctree, included by index.md): the pages present,
+# in this order, so that a page written later (measurements.md, from the benchmarks'
+# results) joins once it is there.
+CONTENTS = ["install", "method", "mpi", "demos", "gallery", "measurements", "api"]
+_contents = DOCS / "_autogen" / "contents.inc"
+_text = (
+    "```{toctree}\n:maxdepth: 2\n:caption: Contents\n\n"
+    + "".join(f"{page}\n" for page in CONTENTS if (DOCS / f"{page}.md").exists())
+    + "```\n"
+)
+if not _contents.exists() or _contents.read_text(encoding="utf-8") != _text:
+    _contents.parent.mkdir(parents=True, exist_ok=True)
+    _contents.write_text(_text, encoding="utf-8")
+
 # Demo pages: where the demos are, where their pages go.
 demo_source_dir = str(ROOT / "demos")
 demo_output_dir = "_autogen/demos"
