@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import json
+import sys
 
 import numpy as np
 import pytest
-from conftest import run_mpi
+from conftest import ROOT, run_mpi
 
 
 def _run(demo: str, nprocs: int, out) -> dict:
@@ -118,6 +119,39 @@ def test_poisson_demo(tmp_path):
     for a, b in zip(rows, parallel["rows"]):
         assert a["n_cells"] == b["n_cells"]
         assert np.isclose(a["L2"], b["L2"], rtol=1e-5) and np.isclose(a["H1"], b["H1"], rtol=1e-5)
+
+
+def test_poisson_rates_above_the_round_off_floor():
+    """The rates are taken between the finest levels whose errors exceed TRUSTED times
+    their round-off estimates: an error at the floor (the last one, 10 times its estimate,
+    as k = 4 at its finest level) is left out, and a series without such a pair has no
+    rate, which the check rejects."""
+    sys.path.insert(0, str(ROOT / "demos"))
+    try:
+        import poisson_convergence as demo
+    finally:
+        sys.path.pop(0)
+    h = 0.3125 / 2.0 ** np.arange(5)
+    err = np.array([1.7e-6, 5.7e-8, 1.5e-9, 3.2e-11, 7.7e-13])
+    roundoff = np.array([1e-16, 2e-16, 5e-15, 2e-14, 7e-14])
+    assert demo.finest_trusted(err, roundoff) == 3
+    assert demo.finest_trusted(err[:2], np.full(2, 1e-10)) is None
+    rows = [
+        {"map": m, "k": 4, "h": h[i], "L2": err[i], "H1": 100 * err[i],
+         "L2_roundoff": roundoff[i], "H1_roundoff": roundoff[i]}
+        for m in demo.MAPS for i in range(5)
+    ]  # fmt: skip
+    rates = demo.convergence_rates(demo.MPI.COMM_SELF, rows, [4])
+    expected = np.log2(err[2] / err[3])
+    for r in rates:
+        assert r["L2_levels"] == [2, 3] and r["L2_rate"] == pytest.approx(expected), r
+        assert r["H1_levels"] == [3, 4], r  # 100 times the error: above the floor there
+    for r in rows[-5:]:  # the last map: every level at the floor
+        r["L2"] = r["L2_roundoff"]
+    rates = demo.convergence_rates(demo.MPI.COMM_SELF, rows, [4])
+    assert rates[-1]["L2_rate"] is None
+    with pytest.raises(AssertionError):
+        demo.check(rows, rates, [4], quick=False)
 
 
 def _without_seconds(value):
