@@ -527,11 +527,7 @@ def _refinement_rounds(
         if not plan.misses_target(quality):
             return done, rounds
         kept = _better(kept, (done, len(rounds)))
-        missed = (
-            f"round {len(rounds) + 1}: dihedral angles in "
-            f"[{quality['theta_min_deg']:.3g}, {quality['theta_max_deg']:.3g}] deg on the "
-            f"{plan.name} (auto keeps it within {plans_tet.AUTO_DIHEDRAL})"
-        )
+        missed = f"round {len(rounds) + 1}: {plan.target_text(quality)}"
         alt = plan.fallback(max_cells)
         if alt is not None:
             rounds.append(
@@ -550,15 +546,14 @@ def _refinement_rounds(
 
 
 def _better(kept: tuple[_Attempt, int] | None, new: tuple[_Attempt, int]) -> tuple[_Attempt, int]:
-    """Of two valid rounds (with their places in the record), the one whose dihedral
-    angles come closer to :data:`~dolfinx_universal.meshing.plans_tet.AUTO_DIHEDRAL` (the
+    """Of two valid rounds (with their places in the record), the one that comes closer to
+    its plan's target (:meth:`~dolfinx_universal.meshing.plans.Plan.target_margin`; the
     earlier on a tie)."""
     if kept is None:
         return new
-    lo, hi = plans_tet.AUTO_DIHEDRAL
 
     def margin(a: _Attempt) -> float:
-        return min(a.quality["theta_min_deg"] - lo, hi - a.quality["theta_max_deg"])
+        return a.plan.target_margin(a.quality)
 
     return new if margin(new[0]) > margin(kept[0]) else kept
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TypeVar
@@ -141,11 +142,20 @@ class Plan:
         """Halve the size around ``places`` ``(k, gdim)``."""
         raise NotImplementedError
 
+    def target_margin(self, quality: dict) -> float:
+        """How far a mesh of this background that passed every check lies inside the
+        quality it aims at (negative: outside; ``inf``: no aim), from ``quality``, that of
+        :func:`~dolfinx_universal.conforming.quality.quality_report`."""
+        return math.inf
+
     def misses_target(self, quality: dict) -> bool:
-        """Whether a mesh of this background that passed every check is still worse than
-        :attr:`alternative` promises (``quality``: that of
-        :func:`~dolfinx_universal.conforming.quality.quality_report`)."""
-        return False
+        """Whether a mesh that passed every check misses the quality this background aims
+        at (:meth:`target_margin` below 0)."""
+        return self.target_margin(quality) < 0.0
+
+    def target_text(self, quality: dict) -> str:
+        """The miss, in words, for the record of the rounds."""
+        return f"{self.name} missed its target"
 
     def fallback(self, max_cells: float) -> Plan | None:
         """The plan to try where a mesh of this one misses its target: :attr:`alternative`

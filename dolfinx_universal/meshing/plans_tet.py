@@ -436,11 +436,20 @@ class GradedTetPlan(Plan):
         self.component_sizes, self.sources = on_root(self.comm, settle)
         self._tree = None
 
-    def misses_target(self, quality: dict) -> bool:
-        """Whether ``tet_background="auto"`` chose this octree (:attr:`auto`) and the
-        dihedral angles leave :data:`AUTO_DIHEDRAL` (what the A15 background keeps)."""
+    def target_margin(self, quality: dict) -> float:
+        """Where ``tet_background="auto"`` chose this octree (:attr:`auto`): how far the
+        dihedral angles lie inside :data:`AUTO_DIHEDRAL` (what the A15 background keeps)."""
+        if not self.auto:
+            return math.inf
         lo, hi = AUTO_DIHEDRAL
-        return self.auto and (quality["theta_min_deg"] < lo or quality["theta_max_deg"] > hi)
+        return min(quality["theta_min_deg"] - lo, hi - quality["theta_max_deg"])
+
+    def target_text(self, quality: dict) -> str:
+        return (
+            f"dihedral angles in [{quality['theta_min_deg']:.3g}, "
+            f"{quality['theta_max_deg']:.3g}] deg on the {self.name} (auto keeps it within "
+            f"{AUTO_DIHEDRAL})"
+        )
 
     def fallback(self, max_cells: float) -> Plan | None:
         """The A15 :attr:`alternative` where it stays within ``max_cells``, else the same
