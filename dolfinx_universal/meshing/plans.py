@@ -50,8 +50,10 @@ class PlanRequest:
 def check_components(boundary: Boundary, n: int = 2048) -> None:
     """Raise if the components of a :class:`~dolfinx_universal.boundaries.curves.Domain` overlap.
 
-    Each body must lie inside the container and outside every other body; touching counts
-    as overlapping (no mesh size resolves a zero gap).
+    Each body must lie inside the container and outside every other body. Components that
+    touch (no mesh size resolves a zero gap) pass here where no sample lies across the
+    other: the sizing then asks for more than ``max_cells`` cells at the contact, and
+    :meth:`Plan.check_size` names them (:func:`narrow_gap`).
 
     Raises
     ------
