@@ -164,17 +164,21 @@ def dfg_section(data: dict) -> list[str]:
     )
     big = min((g["n_dofs"] for g in gmsh_rows if g["level"] >= 2), default=None)
     if big is not None:
-        wins = dfg_wins(data, "adaptive", big)
-        lines += [
-            "",
-            f"From {big} dofs on (the gmsh meshes of level 2 and above), the adaptive "
-            "meshes' error is smaller than the gmsh mesh's of the same size in "
-            + ", ".join(
-                f"{w} of {n} comparisons for {name}"
-                for name, (w, n) in zip(("c_D", "c_L", "Δp"), wins.values())
+        lines += ["", f"From {big} dofs on (the gmsh meshes of level 2 and above):", ""]
+        for family, label in (
+            ("adaptive", "the adaptive meshes'"),
+            ("universal", "the field meshes'"),
+        ):
+            wins = dfg_wins(data, family, big)
+            lines.append(
+                f"* {label} error is smaller than the gmsh mesh's of the same size in "
+                + ", ".join(
+                    f"{w} of {n} comparisons for {name}"
+                    for name, (w, n) in zip(("c_D", "c_L", "Δp"), wins.values())
+                )
+                + ";"
             )
-            + ".",
-        ]
+        lines[-1] = lines[-1][:-1] + "."
     return lines
 
 
