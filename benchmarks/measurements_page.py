@@ -238,14 +238,38 @@ def fuzz_section(data: dict) -> list[str]:
     else:
         for key, label in (
             ("min_dihedral_percentiles_0_1_5_50", "smallest dihedral angle, percentiles"),
-            ("max_dihedral_percentiles_100_99_95_50", "largest dihedral angle, percentiles"),
+            ("max_dihedral_percentiles_50_95_99_100", "largest dihedral angle, percentiles"),
         ):
             if key in data:
                 which = key.split("percentiles_")[1].replace("_", " / ")
                 rows.append([f"{label} {which} (degrees)", _pct(data[key])])
+        if "volume_constant_percentiles_50_100" in data:
+            rows.append(
+                [
+                    "volume error / h², percentiles 50 / 100",
+                    _pct(data["volume_constant_percentiles_50_100"], 3),
+                ]
+            )
+        if "num_cells_percentiles_50_100" in data:
+            rows.append(
+                [
+                    "tetrahedra, percentiles 50 / 100",
+                    _pct(data["num_cells_percentiles_50_100"], 0),
+                ]
+            )
     t = data["time_s"]
     rows.append(["time per domain, median / max", f"{_s(t['median'])} / {_s(t['max'])}"])
     lines += _table(["", "result"], rows)
+    if data.get("by_kind"):
+        lines += ["", "By kind:", ""]
+        lines += _table(
+            ["kind", "outcomes"],
+            [
+                [k, ", ".join(f"{o}: {c}" for o, c in v.items())]
+                for k, v in data["by_kind"].items()
+                if v
+            ],
+        )
     if data.get("by_kind_degree"):
         lines += ["", "By kind and degree:", ""]
         lines += _table(
@@ -264,7 +288,7 @@ def fuzz_section(data: dict) -> list[str]:
                 [
                     str(f.get("seed")),
                     str(f.get("kind")),
-                    str(f.get("degree")),
+                    str(f.get("degree", 1)),
                     str(f.get("outcome")),
                     str(f.get("message") or "")[:120].replace("|", "/").replace("\n", " "),
                 ]
