@@ -305,7 +305,7 @@ def summarise(comm: MPI.Comm, runs: list[dict]) -> dict:
 #   degrees before any relaxation, and the relaxation leaves them alone);
 # - `auto3x`: the default `tet_background="auto"` in that large box, where it picks the
 #   octree, and conforms the A15 lattice instead where the octree's dihedral angles leave
-#   $[30°, 125°]$ ({py:data}`dolfinx_universal.meshing.domain.AUTO_DIHEDRAL`), unless the A15
+#   $[30°, 125°]$ ({py:data}`dolfinx_universal.meshing.plans_tet.AUTO_DIHEDRAL`), unless the A15
 #   background would exceed `max_cells`.
 #
 # A placement is a random rotation and a translation of the surface by $u\,a$, with the
