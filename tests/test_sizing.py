@@ -398,6 +398,17 @@ def test_touching_or_overlapping_bodies_raise():
         feature_size(d, spacing=0.01)
 
 
+def test_touching_bodies_are_named():
+    """Where the feature that cannot be resolved is a contact between two components of a
+    Domain, the error names them and the place."""
+    d = Domain(None, [Circle((0, 0), 1), Circle((2, 0), 1)])
+    with pytest.raises(ValueError, match=r"body 0 and body 1 touch or nearly touch near \(1, "):
+        feature_size(d, 0.01)
+    d = Domain(Circle((0, 0), 3), [Circle((0, 0), 0.5), Circle((1.0, 0.0), 0.5)])
+    with pytest.raises(ValueError, match=r"body 1 and body 2 touch or nearly touch near \(0.5, "):
+        feature_size(d, 0.01)
+
+
 def test_feature_size_timings():
     pts = np.array(
         [

@@ -18,6 +18,7 @@ from dolfinx_universal.conforming.universal import ConformingMesh
 from dolfinx_universal.core.arrays import Float
 from dolfinx_universal.core.collective import MeshingError, collective_call, where
 from dolfinx_universal.sizing.fields import SizeFunction
+from dolfinx_universal.sizing.gaps import narrow_gap
 
 __all__ = [
     "Plan",
@@ -26,7 +27,6 @@ __all__ = [
     "check_components",
     "checked_box",
     "default_box",
-    "narrow_gap",
     "on_root",
 ]
 
@@ -53,7 +53,8 @@ def check_components(boundary: Boundary, n: int = 2048) -> None:
     Each body must lie inside the container and outside every other body. Components that
     touch (no mesh size resolves a zero gap) pass here where no sample lies across the
     other: the sizing then asks for more than ``max_cells`` cells at the contact, and
-    :meth:`Plan.check_size` names them (:func:`narrow_gap`).
+    :meth:`Plan.check_size` names them
+    (:func:`~dolfinx_universal.sizing.gaps.narrow_gap`).
 
     Raises
     ------
@@ -182,14 +183,15 @@ class Plan:
         """Raise when the background would exceed ``max_cells``, naming where the smallest
         size is needed (of equal sizes, where the feature size is smallest) and, given the
         ``boundary``, the components of a Domain that nearly touch there
-        (:func:`narrow_gap`)."""
+        (:func:`~dolfinx_universal.sizing.gaps.narrow_gap`; a gap of width ``g`` has a feature
+        size of about ``g / 2``)."""
         estimate = self.estimate()
         if estimate <= max_cells:
             return
         current = self.sizes()
         i = int(np.lexsort((self.feature, current))[0])
         at = self.points[i : i + 1]
-        gap = "" if boundary is None else narrow_gap(boundary, at, float(self.feature[i]))
+        gap = "" if boundary is None else narrow_gap(boundary, at, 2.5 * float(self.feature[i]))
         after = f" after {len(rounds)} refinement rounds ({'; '.join(rounds)})" if rounds else ""
         if gap:
             message = (
@@ -206,35 +208,6 @@ class Plan:
                 "geometry there"
             )
         raise MeshingError(message, at, refinable=False)
-
-
-def narrow_gap(boundary: Boundary, point: Float, feature: float) -> str:
-    """Which components of a :class:`~dolfinx_universal.boundaries.curves.Domain` touch or
-    nearly touch at ``point`` (``(1, gdim)``, on Gamma, where the local feature size is
-    ``feature``): the component through the point and the nearest other one, where that is
-    within ``2.5 feature`` (a gap of width ``g`` has feature size about ``g / 2``); ``""``
-    where none is (a thin part or high curvature of one component)."""
-    if not isinstance(boundary, Domain) or len(boundary.components) < 2:
-        return ""
-    p = np.asarray(point, dtype=np.float64).reshape(1, -1)
-    names = [
-        f"body {k}" if body else "the container" for k, (_, body) in enumerate(boundary.components)
-    ]
-    try:
-        near = [np.asarray(b.closest_point(p), dtype=np.float64) for b, _ in boundary.components]
-    except (RuntimeError, ValueError, FloatingPointError):  # no projection found: no note
-        return ""
-    dist = np.array([float(np.linalg.norm(p - q.reshape(p.shape))) for q in near])
-    own = int(np.argmin(dist))
-    dist[own] = np.inf
-    other = int(np.argmin(dist))
-    if not dist[other] <= 2.5 * feature:
-        return ""
-    first, second = sorted((own, other))
-    return (
-        f"{names[first]} and {names[second]} touch or nearly touch near {where(p)} (they "
-        f"come within {dist[other]:.3g} of each other there)"
-    )
 
 
 class UserSize:

@@ -30,6 +30,7 @@ from dolfinx_universal.core.arrays import (
     readonly,
 )
 from dolfinx_universal.core.collective import collective_call, raise_collective
+from dolfinx_universal.sizing.gaps import narrow_gap
 
 __all__ = [
     "FEATURE_DIVISOR",
@@ -404,8 +405,10 @@ def feature_size(
         if spacing is not None or s <= finest or h <= finest:
             if smallest >= MIN_RESOLUTION * h:
                 return samples, feature
+            gap = narrow_gap(boundary, at, max(2.5 * smallest, MIN_RESOLUTION * h))
             raise ValueError(
-                f"the boundary has a feature of size {smallest:.3g} near {_at(at)} that "
+                (f"{gap}: " if gap else "")
+                + f"the boundary has a feature of size {smallest:.3g} near {_at(at)} that "
                 f"{len(samples.points)} samples {h:.3g} apart cannot resolve (at least "
                 f"{MIN_RESOLUTION:g} samples across it are needed): components touching or "
                 "overlapping, a curve crossing itself, or a neck or gap too thin; separate "
