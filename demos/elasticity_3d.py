@@ -23,7 +23,7 @@
 #
 # It illustrates how to
 #
-# - mesh a domain with a hole, {py:class}`dolfinx_universal.boundaries.curves.Domain` (a container
+# - mesh a domain with a hole, {py:class}`dolfinx_universal.boundaries.domains.Domain` (a container
 #   sphere minus a body sphere), with curved tetrahedra of degree $q$ by
 #   {py:func}`dolfinx_universal.meshing.domain.mesh_domain`, forcing a uniform background of a
 #   given size $h$ for a convergence study,

@@ -12,16 +12,16 @@ from dolfinx_universal.backgrounds.graded_tet import graded_tet_mesh
 from dolfinx_universal.backgrounds.graded_tri import graded_mesh
 from dolfinx_universal.backgrounds.lattice_tet import a15_mesh, bcc_mesh
 from dolfinx_universal.backgrounds.lattice_tri import equilateral_mesh, refine_uniform
+from dolfinx_universal.boundaries.base import Boundary
 from dolfinx_universal.boundaries.curves import (
-    Boundary,
     Circle,
-    Domain,
     Ellipse,
     ImplicitCurve,
     PeriodicSpline,
     PolarCurve,
-    RigidMotion,
 )
+from dolfinx_universal.boundaries.domains import Domain
+from dolfinx_universal.boundaries.motions import RigidMotion
 from dolfinx_universal.boundaries.surfaces import (
     Ellipsoid,
     ImplicitSurface,

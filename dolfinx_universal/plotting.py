@@ -1201,7 +1201,7 @@ def plot_function(
     show_outline
         Draw the boundary edges of the drawn cells (thin, dark).
     boundary, boundary_color, boundary_samples
-        An exact boundary (:class:`~dolfinx_universal.boundaries.curves.Boundary`) drawn on top.
+        An exact boundary (:class:`~dolfinx_universal.boundaries.base.Boundary`) drawn on top.
     inset, inset_loc
         Zoom window ``(x0, y0, x1, y1)`` drawn in an inset, in the corner ``inset_loc``
         (``"upper right"``...; default: the corner farthest from the window).

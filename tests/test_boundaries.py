@@ -11,16 +11,16 @@ import pytest
 from scipy.interpolate import CubicSpline
 from scipy.optimize import minimize_scalar
 
+from dolfinx_universal.boundaries.base import Boundary
 from dolfinx_universal.boundaries.curves import (
-    Boundary,
     Circle,
-    Domain,
     Ellipse,
     ImplicitCurve,
     PeriodicSpline,
     PolarCurve,
-    RigidMotion,
 )
+from dolfinx_universal.boundaries.domains import Domain
+from dolfinx_universal.boundaries.motions import RigidMotion
 from dolfinx_universal.boundaries.numerics import normd
 from dolfinx_universal.boundaries.surfaces import Sphere
 from dolfinx_universal.core.arrays import norm2

@@ -14,7 +14,8 @@ from dolfinx import fem
 from dolfinx import mesh as dmesh
 
 import dolfinx_universal as du
-from dolfinx_universal.boundaries.curves import Circle, Domain
+from dolfinx_universal.boundaries.curves import Circle
+from dolfinx_universal.boundaries.domains import Domain
 from dolfinx_universal.plotting import (
     boundary_polyline,
     cell_outlines,

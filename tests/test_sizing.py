@@ -11,13 +11,13 @@ from scipy.optimize import minimize_scalar
 
 from dolfinx_universal.boundaries.curves import (
     Circle,
-    Domain,
     Ellipse,
     ImplicitCurve,
     PeriodicSpline,
     PolarCurve,
-    RigidMotion,
 )
+from dolfinx_universal.boundaries.domains import Domain
+from dolfinx_universal.boundaries.motions import RigidMotion
 from dolfinx_universal.sizing.fields import (
     FEATURE_DIVISOR,
     CurveSamples,
@@ -132,14 +132,14 @@ def neck(amp=0.7):
 def test_loops_of_compositions():
     body = RigidMotion(Ellipse((0, 0), 0.4, 0.1), 0.3, translation=(0.5, 0.2))
     d = Domain(Circle((0, 0), 2), [body, Circle((-1, 0), 0.3)])
-    loops = d._loops(0.01)
+    loops = d.loops(0.01)
     assert len(loops) == 3
     for q, (b, _) in zip(loops, d.components):
         assert np.abs(b.signed_distance(q)).max() < 1e-9
         assert np.linalg.norm(np.roll(q, -1, axis=0) - q, axis=1).max() <= 0.01
     # RigidMotion of a two-loop ImplicitCurve keeps both loops.
     moved = RigidMotion(two_discs((-1, 0), (1, 0), 0.5), 0.5, translation=(1, 2))
-    assert len(moved._loops(0.02)) == 2
+    assert len(moved.loops(0.02)) == 2
 
 
 def test_curve_samples_structure():

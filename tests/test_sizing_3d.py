@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from dolfinx_universal.boundaries.curves import Domain, RigidMotion
+from dolfinx_universal.boundaries.domains import Domain
+from dolfinx_universal.boundaries.motions import RigidMotion
 from dolfinx_universal.boundaries.surfaces import Ellipsoid, ImplicitSurface, Sphere, Torus
 from dolfinx_universal.sizing.surfaces import (
     SurfaceFeature,

@@ -187,7 +187,7 @@ def check_near(S: Surface, x: Float) -> None:
         assert m[d <= dist].all(), "near() missed a point within the distance"
     per = np.linspace(0, 0.5, len(x))
     assert S.near(x, per)[d <= per].all()
-    lb = S._lower_bound(x)
+    lb = S.lower_bound(x)
     assert (lb <= d * (1 + 1e-12) + 1e-15).all()
     for cap in (0.0, 0.05, 0.3):  # the bound near() uses: lb where lb <= cap, above cap else
         lw = S._lower_bound_within(x, cap)
@@ -484,14 +484,14 @@ def test_implicit_torus_against_closed_form() -> None:
     np.testing.assert_allclose(phi, phit, atol=1e-13)
     np.testing.assert_allclose(y, yt, atol=1e-9)
     np.testing.assert_allclose(n, nt, atol=1e-9)
-    check_projection(imp, x[:300], lambda y: T._lower_bound(y) * np.sign(T.signed_distance(y)))
+    check_projection(imp, x[:300], lambda y: T.lower_bound(y) * np.sign(T.signed_distance(y)))
     check_near(imp, x)
     assert imp.min_radius_of_curvature() == pytest.approx(0.3, rel=0.01)
     assert _torus_implicit(1.0, 0.3, min_radius_of_curvature=0.25).min_radius_of_curvature() == 0.25
     assert imp.area() == pytest.approx(T.area(), rel=0.03)
     y = imp.sample(2000)
     assert y.shape == (2000, 3)
-    np.testing.assert_allclose(T._lower_bound(y), 0, atol=1e-13)
+    np.testing.assert_allclose(T.lower_bound(y), 0, atol=1e-13)
     dense_pts = _dense(_torus_param(T), (2 * np.pi, 2 * np.pi), (300, 300))[2]
     assert cKDTree(y).query(dense_pts)[0].max() < 2.5 * np.sqrt(T.area() / len(y))
 
@@ -508,7 +508,7 @@ def test_implicit_ties_on_the_torus_axis() -> None:
         y = imp.closest_point(x)
         d, dt = np.linalg.norm(y - x, axis=1), np.linalg.norm(T.closest_point(x) - x, axis=1)
         np.testing.assert_allclose(d, dt, rtol=0, atol=1e-12)
-        np.testing.assert_allclose(T._lower_bound(y), 0, atol=1e-12)  # on Gamma
+        np.testing.assert_allclose(T.lower_bound(y), 0, atol=1e-12)  # on Gamma
         np.testing.assert_array_equal(imp.closest_point(x), y)  # deterministic
         phi, yn, n = imp.project_normal(x)
         np.testing.assert_allclose(np.abs(phi), dt, atol=1e-12)
@@ -667,7 +667,7 @@ def test_domain_3d() -> None:
     np.testing.assert_allclose(np.cross(*D.tangent_basis(x).transpose(1, 0, 2)), n, atol=1e-14)
     for dist in (0.05, 0.3):
         assert D.near(x, dist)[ds.min(axis=0) <= dist].all()
-    assert (D._lower_bound(x) <= ds.min(axis=0) + 1e-15).all()
+    assert (D.lower_bound(x) <= ds.min(axis=0) + 1e-15).all()
     lo, hi = D.bounding_box()
     np.testing.assert_allclose([lo, hi], C.bounding_box())
     s = D.sample(3000)

@@ -220,12 +220,12 @@ class Boundary(abc.ABC):
         """
         x = as_points(x)
         d = distances(distance, len(x))
-        on_grid = type(self)._lower_bound is Boundary._lower_bound
+        on_grid = type(self).lower_bound is Boundary.lower_bound
         if on_grid:  # the grid's bound, its cells kept for the test below
             cells = self._grid.cells(x)
             lb = self._grid.lower_bound(x, cells)
         else:
-            lb = self._lower_bound(x)
+            lb = self.lower_bound(x)
         mask = lb <= d
         if mask.any():
             g = self._grid
@@ -241,8 +241,9 @@ class Boundary(abc.ABC):
                 mask[test] = dist <= reach
         return mask
 
-    # Private hooks of the acceleration grid, overridden where cheaper or not applicable.
-    def _loops(self, spacing: float) -> list[Float]:
+    # Samples and measures that sizing and the acceleration grid use; overridden where cheaper
+    # or not applicable.
+    def loops(self, spacing: float) -> list[Float]:
         """Ordered dense samples of each closed curve of Gamma, at most ``spacing`` apart."""
         n = 1024
         while True:
@@ -252,24 +253,24 @@ class Boundary(abc.ABC):
                 return [p]
             n = int(np.ceil(n * longest / spacing * 1.1))
 
-    def _loops_normals(self, spacing: float) -> tuple[list[Float], list[Float]]:
-        """:meth:`_loops` and the outward normals of Omega at their points (same shapes)."""
-        loops = self._loops(spacing)
+    def loops_normals(self, spacing: float) -> tuple[list[Float], list[Float]]:
+        """:meth:`loops` and the outward normals of Omega at their points (same shapes)."""
+        loops = self.loops(spacing)
         normals = np.asarray(self.normal(np.concatenate(loops)), dtype=np.float64)
         return loops, np.split(normals, np.cumsum([len(q) for q in loops])[:-1])
 
-    def _length(self) -> float:
+    def length(self) -> float:
         """Length of Gamma (approximate)."""
-        return float(sum(chords(q).sum() for q in self._loops(np.inf)))
+        return float(sum(chords(q).sum() for q in self.loops(np.inf)))
 
-    def _measure(self) -> float:
+    def measure(self) -> float:
         """Measure of Gamma (approximate): its length in 2D, its area in 3D."""
-        return self._length()
+        return self.length()
 
-    def _lower_bound(self, x: Float) -> Float:
+    def lower_bound(self, x: Float) -> Float:
         """Cheap lower bound of the distance from ``x (n, 2)`` to Gamma, shape ``(n,)``."""
         return self._grid.lower_bound(x)
 
     @cached_property
     def _grid(self) -> SignGrid:
-        return SignGrid(self._loops, np.asarray(self.bounding_box(), dtype=np.float64))
+        return SignGrid(self.loops, np.asarray(self.bounding_box(), dtype=np.float64))

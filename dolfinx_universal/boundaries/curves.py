@@ -22,9 +22,7 @@ from dolfinx_universal.boundaries.curve_samples import (
     neighbours,
     window_clearance,
 )
-from dolfinx_universal.boundaries.domains import Domain
 from dolfinx_universal.boundaries.grid import chords
-from dolfinx_universal.boundaries.motions import RigidMotion
 from dolfinx_universal.boundaries.numerics import (
     EPS,
     ArrayFn,
@@ -49,15 +47,12 @@ from dolfinx_universal.core.arrays import (
 )
 
 __all__ = [
-    "Boundary",
     "Circle",
-    "Domain",
     "Ellipse",
     "ImplicitCurve",
     "ParametricCurve",
     "PeriodicSpline",
     "PolarCurve",
-    "RigidMotion",
 ]
 
 
@@ -115,9 +110,9 @@ class Circle(Boundary):
 
     def near(self, x: npt.ArrayLike, distance: float | npt.ArrayLike) -> Bool:
         x = as_points(x)
-        return self._lower_bound(x) <= distances(distance, len(x))
+        return self.lower_bound(x) <= distances(distance, len(x))
 
-    def _lower_bound(self, x: Float) -> Float:
+    def lower_bound(self, x: Float) -> Float:
         return np.abs(norm2(x - self.center) - self.radius)
 
     def bounding_box(self) -> Float:
@@ -131,7 +126,7 @@ class Circle(Boundary):
     def min_radius_of_curvature(self) -> float:
         return self.radius
 
-    def _length(self) -> float:
+    def length(self) -> float:
         return 2 * np.pi * self.radius
 
 
@@ -300,7 +295,7 @@ class ImplicitCurve(Boundary):
             raise ValueError("the zero level set of f leaves bbox: enlarge bbox")
         return loops
 
-    def _loops(self, spacing: float) -> list[Float]:
+    def loops(self, spacing: float) -> list[Float]:
         if not np.isfinite(spacing):
             return self._base_loops
         out = []
@@ -317,7 +312,7 @@ class ImplicitCurve(Boundary):
 
     @cached_property
     def _samples(self) -> tuple[Float, cKDTree, Int, Int, float]:
-        loops = self._loops(self._length() / self.n_samples)
+        loops = self.loops(self.length() / self.n_samples)
         pts = np.concatenate(loops)
         prev, nxt = neighbours([len(q) for q in loops])
         return pts, cKDTree(pts), prev, nxt, max(float(chords(q).max()) for q in loops)
@@ -594,12 +589,12 @@ class ParametricCurve(Boundary):
         u = np.arange(n) * (s[-1] / max(n, 1))
         return np.mod(np.interp(u, s, np.append(t, self.period)), self.period)
 
-    def _loops_normals(self, spacing: float) -> tuple[list[Float], list[Float]]:
-        if not native(self, ParametricCurve, "sample", "_loops", "normal"):
-            return Boundary._loops_normals(self, spacing)
+    def loops_normals(self, spacing: float) -> tuple[list[Float], list[Float]]:
+        if not native(self, ParametricCurve, "sample", "loops", "normal"):
+            return Boundary.loops_normals(self, spacing)
         cached = self.__dict__.get("_last_loops")  # a moving body asks for the same spacing
         if cached is None or cached[0] != spacing:
-            n = 1024  # as Boundary._loops; the normals from the parameters, not by projection
+            n = 1024  # as Boundary.loops; the normals from the parameters, not by projection
             while True:
                 t = self._sample_parameters(n)
                 p = self.point(t)

@@ -107,7 +107,7 @@ class Domain(Boundary):
                 return np.zeros(len(x), dtype=np.intp), y, normd(x - y), -n if body else n
             y = b.closest_point(x)
             return np.zeros(len(x), dtype=np.intp), y, normd(x - y), None
-        lb = np.array([b._lower_bound(x) for b, _ in comps]).reshape(len(comps), len(x))
+        lb = np.array([b.lower_bound(x) for b, _ in comps]).reshape(len(comps), len(x))
         first = lb.argmin(axis=0) if len(x) else np.zeros(0, dtype=np.intp)
         idx, y, d = first.copy(), np.empty((len(x), self.gdim)), np.full(len(x), np.inf)
         out: Float | None = np.empty((len(x), self.gdim)) if normals else None
@@ -172,8 +172,8 @@ class Domain(Boundary):
             out |= b.near(x, distance)
         return out
 
-    def _lower_bound(self, x: Float) -> Float:
-        bounds: list[Float] = [b._lower_bound(x) for b, _ in self.components]
+    def lower_bound(self, x: Float) -> Float:
+        bounds: list[Float] = [b.lower_bound(x) for b, _ in self.components]
         return np.min(bounds, axis=0)
 
     def bounding_box(self) -> Float:
@@ -182,27 +182,27 @@ class Domain(Boundary):
 
     def sample(self, n: int) -> Float:
         comps = [b for b, _ in self.components]
-        k = split(n, [b._measure() for b in comps])
+        k = split(n, [b.measure() for b in comps])
         return np.concatenate([b.sample(m) for b, m in zip(comps, k)] + [np.empty((0, self.gdim))])
 
     def min_radius_of_curvature(self) -> float:
         return min(b.min_radius_of_curvature() for b, _ in self.components)
 
-    def _length(self) -> float:
-        return sum(b._length() for b, _ in self.components)
+    def length(self) -> float:
+        return sum(b.length() for b, _ in self.components)
 
-    def _measure(self) -> float:
-        return sum(b._measure() for b, _ in self.components)
+    def measure(self) -> float:
+        return sum(b.measure() for b, _ in self.components)
 
-    def _loops(self, spacing: float) -> list[Float]:
+    def loops(self, spacing: float) -> list[Float]:
         """The loops of every component (container first), each as that component gives it."""
-        return [q for b, _ in self.components for q in b._loops(spacing)]
+        return [q for b, _ in self.components for q in b.loops(spacing)]
 
-    def _loops_normals(self, spacing: float) -> tuple[list[Float], list[Float]]:
+    def loops_normals(self, spacing: float) -> tuple[list[Float], list[Float]]:
         loops: list[Float] = []
         normals: list[Float] = []
         for b, body in self.components:
-            q, n = b._loops_normals(spacing)
+            q, n = b.loops_normals(spacing)
             loops += q
             normals += [-v if body else v for v in n]  # out of Omega: into the bodies
         return loops, normals

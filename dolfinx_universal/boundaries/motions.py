@@ -174,8 +174,8 @@ class RigidMotion(Boundary):
     def near(self, x: npt.ArrayLike, distance: float | npt.ArrayLike) -> Bool:
         return self.base.near(self._to_base(x), distance)
 
-    def _lower_bound(self, x: Float) -> Float:
-        return self.base._lower_bound(self._to_base(x))
+    def lower_bound(self, x: Float) -> Float:
+        return self.base.lower_bound(self._to_base(x))
 
     def bounding_box(self) -> Float:
         box = np.asarray(self.base.bounding_box(), dtype=np.float64)
@@ -201,15 +201,15 @@ class RigidMotion(Boundary):
         """Number of connected components of the base surface (3D)."""
         return int(self.base.num_components)  # type: ignore[attr-defined]
 
-    def _length(self) -> float:
-        return self.base._length()
+    def length(self) -> float:
+        return self.base.length()
 
-    def _measure(self) -> float:
-        return self.base._measure()
+    def measure(self) -> float:
+        return self.base.measure()
 
-    def _loops(self, spacing: float) -> list[Float]:
-        return [self._from_base(q) for q in self.base._loops(spacing)]
+    def loops(self, spacing: float) -> list[Float]:
+        return [self._from_base(q) for q in self.base.loops(spacing)]
 
-    def _loops_normals(self, spacing: float) -> tuple[list[Float], list[Float]]:
-        loops, normals = self.base._loops_normals(spacing)
+    def loops_normals(self, spacing: float) -> tuple[list[Float], list[Float]]:
+        loops, normals = self.base.loops_normals(spacing)
         return [self._from_base(q) for q in loops], [self._turn(n) for n in normals]

@@ -123,9 +123,9 @@ class Surface(Boundary):
     The interface of :class:`~dolfinx_universal.boundaries.base.Boundary` with points ``(n, 3)``
     (``gdim = 3``). Subclasses implement :meth:`sign`, :meth:`closest_point`,
     :meth:`normal`, :meth:`bounding_box`, :meth:`sample`, :meth:`min_radius_of_curvature`,
-    :meth:`area` and :meth:`_lower_bound`, and set :attr:`euler_characteristic`. The planar
+    :meth:`area` and :meth:`lower_bound`, and set :attr:`euler_characteristic`. The planar
     acceleration grid of the 2D boundaries does not apply: :meth:`near` uses
-    :meth:`_lower_bound` and :meth:`_upper_bound`, then the exact distance where they do not
+    :meth:`lower_bound` and :meth:`_upper_bound`, then the exact distance where they do not
     decide. :meth:`tangent` is planar: use :meth:`tangent_basis`.
     """
 
@@ -185,13 +185,13 @@ class Surface(Boundary):
         return mask
 
     @abc.abstractmethod
-    def _lower_bound(self, x: Float) -> Float:
+    def lower_bound(self, x: Float) -> Float:
         """Cheap lower bound ``(n,)`` of the distance from points ``x (n, 3)`` to Gamma."""
 
     def _lower_bound_within(self, x: Float, cap: float) -> Float:
-        """:meth:`_lower_bound`, where it is at most ``cap``; any value above ``cap``
+        """:meth:`lower_bound`, where it is at most ``cap``; any value above ``cap``
         elsewhere (what :meth:`near` needs, and may be cheaper)."""
-        return self._lower_bound(x)
+        return self.lower_bound(x)
 
     def _upper_bound(self, x: Float) -> Float:
         """Cheap upper bound ``(n,)`` of the distance to Gamma (default: none, ``inf``)."""
@@ -207,17 +207,17 @@ class Surface(Boundary):
     def area(self) -> float:
         """Area of Gamma (exact for the analytic shapes, approximate otherwise)."""
 
-    def _measure(self) -> float:
+    def measure(self) -> float:
         return self.area()
 
     # -- planar hooks that do not apply
-    def _length(self) -> float:
+    def length(self) -> float:
         raise NotImplementedError(f"{type(self).__name__} is a surface: it has an area()")
 
-    def _loops(self, spacing: float) -> list[Float]:
+    def loops(self, spacing: float) -> list[Float]:
         raise NotImplementedError("sample loops are planar")
 
-    def _loops_normals(self, spacing: float) -> tuple[list[Float], list[Float]]:
+    def loops_normals(self, spacing: float) -> tuple[list[Float], list[Float]]:
         raise NotImplementedError("sample loops are planar")
 
     @property
@@ -277,9 +277,9 @@ class Sphere(Surface):
 
     def near(self, x: npt.ArrayLike, distance: float | npt.ArrayLike) -> Bool:
         x = _points(x)
-        return self._lower_bound(x) <= distances(distance, len(x))
+        return self.lower_bound(x) <= distances(distance, len(x))
 
-    def _lower_bound(self, x: Float) -> Float:
+    def lower_bound(self, x: Float) -> Float:
         return np.abs(normd(x - self.center) - self.radius)
 
     def bounding_box(self) -> Float:
@@ -419,7 +419,7 @@ class Ellipsoid(Surface):
         p = self._local(x)
         return normd(p / self.semi_axes), normd(p)
 
-    def _lower_bound(self, x: Float) -> Float:
+    def lower_bound(self, x: Float) -> Float:
         # A point of g E is at least |g - 1| e_min from E (E + B((g - 1) e_min) is inside
         # g E for g > 1, and likewise inside), and the distance is at least that to the
         # balls of radii e_min and e_max.
@@ -546,9 +546,9 @@ class Torus(Surface):
 
     def near(self, x: npt.ArrayLike, distance: float | npt.ArrayLike) -> Bool:
         x = _points(x)
-        return self._lower_bound(x) <= distances(distance, len(x))
+        return self.lower_bound(x) <= distances(distance, len(x))
 
-    def _lower_bound(self, x: Float) -> Float:
+    def lower_bound(self, x: Float) -> Float:
         _, z, _, rho = self._offsets(x)
         return np.abs(np.hypot(rho - self.major, z) - self.minor)
 
@@ -1080,7 +1080,7 @@ class ImplicitSurface(Surface):
             g[off] = self._g(self.closest_point(y[off]))
         return unit(g)
 
-    def _lower_bound(self, x: Float) -> Float:
+    def lower_bound(self, x: Float) -> Float:
         return self._lower_bound_within(x, np.inf)  # an unbounded query of the seeds
 
     def _lower_bound_within(self, x: Float, cap: float) -> Float:

@@ -28,7 +28,7 @@ from dolfinx_universal.core.arrays import Bool, Float, Int
 from dolfinx_universal.core.collective import MeshingError, Problem, collective_call
 
 if TYPE_CHECKING:
-    from dolfinx_universal.boundaries.curves import Boundary
+    from dolfinx_universal.boundaries.base import Boundary
     from dolfinx_universal.conforming.kit import ConformingKit
     from dolfinx_universal.conforming.snap import PositiveFacets
 

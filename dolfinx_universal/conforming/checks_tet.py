@@ -31,7 +31,7 @@ from dolfinx_universal.core.arrays import Bool, Float, Int
 from dolfinx_universal.core.collective import Problem, collective_call
 
 if TYPE_CHECKING:
-    from dolfinx_universal.boundaries.curves import Boundary
+    from dolfinx_universal.boundaries.base import Boundary
     from dolfinx_universal.conforming.snap import PositiveFacets
 
 __all__ = [
@@ -264,7 +264,7 @@ class SurfaceParts:
 def surface_parts(boundary: Boundary, n: int = 4096) -> SurfaceParts:
     """Samples, Euler characteristics and sides of the surfaces of ``boundary``.
 
-    A :class:`~dolfinx_universal.boundaries.curves.Domain` has one surface per component (the
+    A :class:`~dolfinx_universal.boundaries.domains.Domain` has one surface per component (the
     container encloses the domain, the bodies do not); any other surface is one component
     enclosing the domain.
     """

@@ -27,7 +27,7 @@ from dolfinx_universal.core.collective import Problem, collective_call
 from dolfinx_universal.sizing.fields import CurveSamples, curve_samples
 
 if TYPE_CHECKING:
-    from dolfinx_universal.boundaries.curves import Boundary
+    from dolfinx_universal.boundaries.base import Boundary
     from dolfinx_universal.conforming.snap import PositiveFacets
 
 __all__ = [

@@ -88,7 +88,7 @@ def relax_vertices(
     onto_gamma
         Points of Gamma near the sliding candidates of the vertices on Gamma, with the unit
         outward normals there, ``(n, gdim) -> ((n, gdim), (n, gdim))``
-        (:meth:`~dolfinx_universal.boundaries.curves.Boundary.onto_gamma`).
+        (:meth:`~dolfinx_universal.boundaries.base.Boundary.onto_gamma`).
     x0
         Original background positions ``(num_vertices, gdim)`` (priorities, moved flags).
     xp

@@ -4,7 +4,7 @@ After ``M_h`` the triangles at Gamma are the worst of a universal mesh (Rangaraj
 2014: minimum angles of about 21-23 degrees on equilateral backgrounds). Connectivity is
 fixed, so quality can only be gained by moving vertices: each inside vertex of the band
 moves freely, each vertex on Gamma slides along Gamma (candidates are moved onto Gamma by
-:meth:`~dolfinx_universal.boundaries.curves.Boundary.onto_gamma`: the closest-point map, or a
+:meth:`~dolfinx_universal.boundaries.base.Boundary.onto_gamma`: the closest-point map, or a
 cheaper map onto Gamma where a boundary has one), to maximise the worst
 :func:`shape_quality` (smallest angle and radius ratio) of the kept triangles around it.
 This is the max-min (nonsmooth) vertex optimisation of optimisation-based smoothing

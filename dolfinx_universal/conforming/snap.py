@@ -37,7 +37,7 @@ from dolfinx_universal.core.collective import (
 if TYPE_CHECKING:
     from dolfinx.common import IndexMap
 
-    from dolfinx_universal.boundaries.curves import Boundary
+    from dolfinx_universal.boundaries.base import Boundary
 
 __all__ = [
     "Band",
@@ -68,7 +68,7 @@ def classify_near(
     Gamma lies in its bounding box, so every vertex outside the box (enlarged by the band
     width) has the sign of the far field: only the vertices in the box are tested, and only
     those within their own ``R_r`` of Gamma are in the band (to be projected; a cheap
-    superset, :meth:`~dolfinx_universal.boundaries.curves.Boundary.near`).
+    superset, :meth:`~dolfinx_universal.boundaries.base.Boundary.near`).
 
     Parameters
     ----------

@@ -14,7 +14,7 @@ import numpy.typing as npt
 from dolfinx import mesh as dmesh
 
 from dolfinx_universal.backgrounds.lattice_tri import GRADATION, vertex_sizes
-from dolfinx_universal.boundaries.curves import RigidMotion
+from dolfinx_universal.boundaries.motions import RigidMotion
 from dolfinx_universal.conforming.checks import (
     TetMeasures,
     classification_problems,
@@ -41,7 +41,7 @@ from dolfinx_universal.core.collective import (
 )
 
 if TYPE_CHECKING:
-    from dolfinx_universal.boundaries.curves import Boundary
+    from dolfinx_universal.boundaries.base import Boundary
     from dolfinx_universal.conforming.snap import PositiveFacets
     from dolfinx_universal.sizing.fields import CurveSamples
 
@@ -311,7 +311,7 @@ class UniversalMesh:
     relax_frame
         The frame of the relaxation's choices (colour priorities, search directions):
         ``"world"`` (fixed axes), or ``"body"``: the frame of the domain's first
-        :class:`~dolfinx_universal.boundaries.curves.RigidMotion` (its bodies first, then its
+        :class:`~dolfinx_universal.boundaries.motions.RigidMotion` (its bodies first, then its
         container; the world if there is none). With ``"body"``, a motion that maps the
         background onto itself (a half turn about a symmetry axis of the lattice, a
         translation by a lattice period) maps the relaxed mesh onto the relaxed mesh, to

@@ -44,7 +44,7 @@ import numpy.typing as npt
 from dolfinx import fem, la
 from dolfinx import mesh as dmesh
 
-from dolfinx_universal.boundaries.curves import Boundary
+from dolfinx_universal.boundaries.base import Boundary
 from dolfinx_universal.core.arrays import Float, Int, any_rows, lagrange_element, project_together
 from dolfinx_universal.core.compiled import pointer, relax_kernels
 from dolfinx_universal.core.lagrange import lagrange_geometry

@@ -14,7 +14,7 @@ import numpy.typing as npt
 from dolfinx import fem
 from dolfinx import mesh as dmesh
 
-from dolfinx_universal.boundaries.curves import Boundary
+from dolfinx_universal.boundaries.base import Boundary
 from dolfinx_universal.conforming.classify import positively_cut
 from dolfinx_universal.core.arrays import Bool, Float, Int, lagrange_element, project_together
 

@@ -16,7 +16,8 @@ import numpy.typing as npt
 from dolfinx import mesh as dmesh
 
 from dolfinx_universal.backgrounds.graded_tri import mirror_axis
-from dolfinx_universal.boundaries.curves import Boundary, Domain
+from dolfinx_universal.boundaries.base import Boundary
+from dolfinx_universal.boundaries.domains import Domain
 from dolfinx_universal.cells.kit import cell_kernels
 from dolfinx_universal.conforming.quality import quality_report
 from dolfinx_universal.conforming.universal import IMMERSED, ConformingMesh, conform
@@ -205,7 +206,7 @@ class MeshedDomain:
         """The facets tagged ``IMMERSED`` of each component of Gamma (process-local).
 
         One array per component, in the order of
-        :attr:`~dolfinx_universal.boundaries.curves.Domain.components` (the container first, then
+        :attr:`~dolfinx_universal.boundaries.domains.Domain.components` (the container first, then
         the bodies; one array for a single boundary): each facet goes to the component
         nearest to its midpoint. For boundary conditions or integrals on one surface,
         e.g. ``dmesh.meshtags(md.mesh, tdim - 1, facets, values)``.

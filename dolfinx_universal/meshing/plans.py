@@ -13,7 +13,8 @@ import numpy as np
 import numpy.typing as npt
 from dolfinx import mesh as dmesh
 
-from dolfinx_universal.boundaries.curves import Boundary, Domain
+from dolfinx_universal.boundaries.base import Boundary
+from dolfinx_universal.boundaries.domains import Domain
 from dolfinx_universal.conforming.universal import ConformingMesh
 from dolfinx_universal.core.arrays import Float
 from dolfinx_universal.core.collective import MeshingError, collective_call, where
@@ -48,7 +49,7 @@ class PlanRequest:
 
 
 def check_components(boundary: Boundary, n: int = 2048) -> None:
-    """Raise if the components of a :class:`~dolfinx_universal.boundaries.curves.Domain` overlap.
+    """Raise if the components of a :class:`~dolfinx_universal.boundaries.domains.Domain` overlap.
 
     Each body must lie inside the container and outside every other body. Components that
     touch (no mesh size resolves a zero gap) pass here where no sample lies across the

@@ -13,7 +13,7 @@ from scipy.spatial import cKDTree
 
 from dolfinx_universal.backgrounds.graded_tet import BandSizeField, GradedOctree, graded_octree
 from dolfinx_universal.backgrounds.lattice_tet import a15_mesh, a15_num_cells
-from dolfinx_universal.boundaries.curves import Boundary
+from dolfinx_universal.boundaries.base import Boundary
 from dolfinx_universal.cells.kit import cell_kernels
 from dolfinx_universal.conforming.universal import ConformingMesh
 from dolfinx_universal.core.arrays import Float

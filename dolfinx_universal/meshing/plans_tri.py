@@ -10,7 +10,7 @@ from dolfinx import mesh as dmesh
 
 from dolfinx_universal.backgrounds.graded_tri import EDGE_FACTOR, graded_mesh, mirror_axis
 from dolfinx_universal.backgrounds.lattice_tri import GRADATION
-from dolfinx_universal.boundaries.curves import Boundary
+from dolfinx_universal.boundaries.base import Boundary
 from dolfinx_universal.core.arrays import Float
 from dolfinx_universal.core.collective import MeshingError, where
 from dolfinx_universal.meshing.plans import (

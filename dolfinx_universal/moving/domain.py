@@ -18,7 +18,7 @@ from dolfinx import fem, la
 from dolfinx import mesh as dmesh
 
 from dolfinx_universal.backgrounds.graded_tri import EDGE_FACTOR, graded_mesh
-from dolfinx_universal.boundaries.curves import Boundary
+from dolfinx_universal.boundaries.base import Boundary
 from dolfinx_universal.cells.kit import cell_kernels
 from dolfinx_universal.conforming.classify import positively_cut
 from dolfinx_universal.conforming.quality import cell_quality

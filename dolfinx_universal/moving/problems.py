@@ -42,7 +42,7 @@ from dolfinx import mesh as dmesh
 from dolfinx.fem.petsc import LinearProblem
 from ufl.algorithms import extract_coefficients
 
-from dolfinx_universal.boundaries.curves import Domain
+from dolfinx_universal.boundaries.domains import Domain
 from dolfinx_universal.core.collective import collective_call
 from dolfinx_universal.moving import rigid_tet, rigid_tri
 
@@ -527,7 +527,7 @@ class MovingStokes:
 
     The container walls, with the velocity ``wall_velocity``, are the background's exterior
     facets (never moved, always in the fluid) or, where the domain of the step is a
-    :class:`~dolfinx_universal.boundaries.curves.Domain` with a container, the part of Gamma_h
+    :class:`~dolfinx_universal.boundaries.domains.Domain` with a container, the part of Gamma_h
     nearer to the container than to every body. On the rest of Gamma_h (the bodies) the
     bodies' velocity is given at each :meth:`solve`; the dofs of no fluid cell are zero; the
     pressure is pinned to zero at ``pressure_point``, a background vertex that stays in the

@@ -15,7 +15,7 @@ from scipy import ndimage
 from scipy.spatial import Delaunay, QhullError, cKDTree
 
 from dolfinx_universal.backgrounds.lattice_tri import largest_of_cells
-from dolfinx_universal.boundaries.curves import Boundary
+from dolfinx_universal.boundaries.base import Boundary
 from dolfinx_universal.cells.kit import cell_kernels
 from dolfinx_universal.core.arrays import (
     Bool,
@@ -122,7 +122,7 @@ def _next(offsets: Int) -> tuple[Int, Int]:
 def curve_samples(boundary: Boundary, spacing: float) -> CurveSamples:
     """Ordered samples of every closed curve of ``boundary`` at most ``spacing`` apart.
 
-    The loops are ``boundary._loops(spacing)``; normals are ``boundary.normal(points)``
+    The loops are ``boundary.loops(spacing)``; normals are ``boundary.normal(points)``
     (from the curve parameters where the boundary knows them: no projection).
     A curve encloses the domain when a point just inside Omega next to it (``p - eps n``,
     ``eps -> 0``) lies inside the curve's polygon: for a simple closed curve this holds when
@@ -149,7 +149,7 @@ def curve_samples(boundary: Boundary, spacing: float) -> CurveSamples:
         (overlapping components, a curve crossing itself).
     """
     spacing = positive(spacing, "spacing")
-    raw, raw_normals = boundary._loops_normals(spacing)
+    raw, raw_normals = boundary.loops_normals(spacing)
     keep = [k for k, q in enumerate(raw) if len(q) >= 3]
     loops = [np.asarray(raw[k], dtype=np.float64)[:, :2] for k in keep]
     if not loops:
@@ -384,7 +384,7 @@ def feature_size(
     """
     lo, hi = np.asarray(boundary.bounding_box(), dtype=np.float64)
     diagonal = float(norm2(hi - lo))
-    finest = 1.25 * float(boundary._length()) / int(max_samples)
+    finest = 1.25 * float(boundary.length()) / int(max_samples)
     s = (
         positive(spacing, "spacing")
         if spacing is not None

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from dolfinx_universal.boundaries.curves import Boundary, Domain
+from dolfinx_universal.boundaries.base import Boundary
+from dolfinx_universal.boundaries.domains import Domain
 from dolfinx_universal.core.arrays import Float
 from dolfinx_universal.core.collective import where
 
@@ -12,12 +13,12 @@ __all__ = ["narrow_gap"]
 
 
 def narrow_gap(boundary: Boundary, point: Float, within: float) -> str:
-    """Which components of a :class:`~dolfinx_universal.boundaries.curves.Domain` touch or
+    """Which components of a :class:`~dolfinx_universal.boundaries.domains.Domain` touch or
     nearly touch at ``point`` (``(1, gdim)``, on Gamma): the component through the point and
     the nearest other one, where that is within ``within`` of the point; ``""`` where none
     is (a thin part or high curvature of one component) or a closest point cannot be found.
 
-    Components are named as :attr:`~dolfinx_universal.boundaries.curves.Domain.components`
+    Components are named as :attr:`~dolfinx_universal.boundaries.domains.Domain.components`
     orders them: ``"the container"``, ``"body k"`` (``k`` the index there).
     """
     if not isinstance(boundary, Domain) or len(boundary.components) < 2:

@@ -21,7 +21,7 @@ samples that query is slow where the ball's centre is about as far from many sam
 from the nearest (deep inside fat parts; every sample of a sphere is at the same distance
 from its centre: one query then visits every sample, 50 s for the 31 000 samples of the unit
 sphere at spacing 0.02), and the radii are only upper estimates (within ``r (s / r)^2``).
-Every :class:`~dolfinx_universal.boundaries.curves.Boundary` has an exact global closest point, so
+Every :class:`~dolfinx_universal.boundaries.base.Boundary` has an exact global closest point, so
 by default the balls shrink against Gamma itself (:func:`surface_nearest`): exact radii,
 3-5 closest-point evaluations per ball on average (0.4 s for the 37 000 samples of a sphere
 with two spherical bodies).
@@ -35,7 +35,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from dolfinx_universal.boundaries.curves import Boundary, Domain, RigidMotion
+from dolfinx_universal.boundaries.base import Boundary
+from dolfinx_universal.boundaries.domains import Domain
+from dolfinx_universal.boundaries.motions import RigidMotion
 from dolfinx_universal.boundaries.surfaces import ImplicitSurface
 from dolfinx_universal.core.arrays import Float, Int, kd_query, positive, readonly
 
@@ -70,7 +72,7 @@ class SurfaceFeature:
     """Points of Gamma ``(n, 3)``."""
     normals: Float
     """Unit normals ``(n, 3)``, pointing out of the domain (into the bodies of a
-    :class:`~dolfinx_universal.boundaries.curves.Domain`)."""
+    :class:`~dolfinx_universal.boundaries.domains.Domain`)."""
     labels: Int
     """Component of each sample ``(n,)``: the index into ``Domain.components`` (container
     first), 0 for a boundary that is not a Domain."""
@@ -89,7 +91,7 @@ class SurfaceFeature:
 
 
 def component_boundaries(boundary: Boundary) -> list[Boundary]:
-    """The components of a :class:`~dolfinx_universal.boundaries.curves.Domain` (container first),
+    """The components of a :class:`~dolfinx_universal.boundaries.domains.Domain` (container first),
     or ``[boundary]``."""
     if isinstance(boundary, Domain):
         return [b for b, _ in boundary.components]
@@ -111,9 +113,9 @@ def _searched(boundary: Boundary) -> bool:
 
 
 def surface_area(surface: Boundary) -> float:
-    """Area of a surface: its own (``area()``, else ``_measure()``) where it has one, else
+    """Area of a surface: its own (``area()``, else ``measure()``) where it has one, else
     that of its bounding box (an overestimate for convex surfaces: denser samples)."""
-    for name in ("area", "_measure"):
+    for name in ("area", "measure"):
         try:
             area = float(getattr(surface, name)())
         except (AttributeError, NotImplementedError, TypeError):
@@ -287,7 +289,7 @@ def surface_feature_size(
     ----------
     boundary
         A closed surface (``gdim = 3``), or a
-        :class:`~dolfinx_universal.boundaries.curves.Domain` of surfaces: the gaps between its
+        :class:`~dolfinx_universal.boundaries.domains.Domain` of surfaces: the gaps between its
         components are features too.
     spacing
         Sample spacing.
