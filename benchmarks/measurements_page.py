@@ -108,11 +108,20 @@ def _partner(rows: list[dict], g: dict, family: str) -> dict:
     )
 
 
+def _levels(rows: list[dict]) -> str:
+    levels = sorted({r["level"] for r in rows})
+    if len(levels) == 1:
+        return f"level {levels[0]}"
+    if levels == list(range(levels[0], levels[-1] + 1)):
+        return f"levels {levels[0]}-{levels[-1]}"
+    return "levels " + ", ".join(map(str, levels))
+
+
 def dfg_section(data: dict) -> list[str]:
     rows = data["rows"]
     gmsh_rows = [r for r in rows if r["mesh"] == "gmsh"]
     lines = [
-        "## DFG 2D-1: accuracy per degree of freedom against gmsh",
+        f"## DFG 2D-1: accuracy per degree of freedom against gmsh ({_levels(rows)})",
         "",
         "`benchmarks/dfg_vs_gmsh.py` solves the steady flow around a cylinder of "
         "`demos/dfg_benchmark.py` (Schäfer & Turek 1996, Re = 20; Taylor-Hood P2/P1, Newton; "
