@@ -796,14 +796,11 @@ def adaptive_table(rows: list[dict]) -> str:
 # tutorial's Threshold field and two finer at the cylinder, `setOrder(2)`) and on this
 # demo's meshes at equal numbers of degrees of freedom: the field's levels and the
 # adaptive loop (its last step's Dörfler fraction chosen to give the same number).
-# From $6 \cdot 10^4$ degrees of freedom on, the adaptive meshes' drag and lift errors
-# are below those of every gmsh mesh, in all nine comparisons: the drag's by 3.7 to 340
-# times (at $7 \cdot 10^5$: $3.9 \cdot 10^{-10}$ to $6.3 \cdot 10^{-9}$ against
-# $2.0 \cdot 10^{-8}$ to $2.1 \cdot 10^{-7}$), the lift's by 1.9 to 57 times (at
-# $7 \cdot 10^5$: $1.5 \cdot 10^{-7}$ to $1.8 \cdot 10^{-7}$ against $1.5 \cdot 10^{-6}$
-# to $8.8 \cdot 10^{-6}$). Meshing is 8.7 to 9.2 times faster than gmsh's generate and
-# `model_to_mesh` at $7 \cdot 10^5$ with the field, 5.8 to 7.7 times with the adaptive
-# field (README, "DFG per degree of freedom against gmsh", for the table).
+# Its tables, with the command that reproduces them, the machine and the date of the run,
+# are on the documentation's measurements page (generated from the benchmark's JSON
+# output): from about $8 \cdot 10^4$ degrees of freedom on, the adaptive meshes' drag and
+# lift errors are below those of the gmsh meshes with the same number of degrees of
+# freedom.
 #
 # ## The study
 

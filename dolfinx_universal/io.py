@@ -355,15 +355,16 @@ def redistribute(
 ) -> tuple[dmesh.Mesh, dmesh.MeshTags | None]:
     """The same mesh and facet tags, distributed by DOLFINx's graph partitioner (collective).
 
-    The meshes of this package keep the partition of their background: each rank holds the
-    cells of its part of the background near Gamma, so the ranks whose parts Gamma crosses
-    hold most of the cells (3-4 times the mean on 16 ranks for a torus, README). A solve
-    on the mesh is shared as unevenly. This recreates the mesh with the same cells and
-    geometry nodes (any degree, the same coordinate element) and shared-facet ghosts,
-    partitioned by DOLFINx's graph partitioner (SCOTCH in the wheel), and carries the facet
-    tags over. Meant for static meshes (:func:`~dolfinx_universal.meshing.domain.mesh_domain`):
-    the result is a new mesh, unrelated to the background, so a
-    :class:`~dolfinx_universal.moving.domain.MovingDomain` keeps its own.
+    The meshes of this package keep the partition of their background: each rank holds the cells
+    of its part of the background near Gamma, so the ranks whose parts Gamma crosses hold most
+    of the cells (3-4 times the mean on 16 ranks for a torus, measured with
+    ``benchmarks/scaling.py``). A solve on the mesh is shared as unevenly. This recreates the
+    mesh with the same cells and geometry nodes (any degree, the same coordinate element) and
+    shared-facet ghosts, partitioned by DOLFINx's graph partitioner (SCOTCH in the wheel), and
+    carries the facet tags over. Meant for static meshes
+    (:func:`~dolfinx_universal.meshing.domain.mesh_domain`): the result is a new mesh, unrelated
+    to the background, so a :class:`~dolfinx_universal.moving.domain.MovingDomain` keeps its
+    own.
 
     Parameters
     ----------
