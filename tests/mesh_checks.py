@@ -40,8 +40,9 @@ from dolfinx import mesh as dmesh
 from scipy.sparse.csgraph import connected_components
 
 import dolfinx_universal as du
+from dolfinx_universal.curved import maps_tri
 
-__all__ = ["check_domain_mesh", "check_mesh", "reference_lattice"]
+__all__ = ["check_domain_mesh", "check_mesh", "curved_triangle_nodes", "reference_lattice"]
 
 Float = npt.NDArray[np.float64]
 Int = npt.NDArray[np.int64]
@@ -78,6 +79,15 @@ def reference_lattice(n: int) -> Float:
     first = [int(np.flatnonzero((pts == v).all(axis=1))[0]) for v in ([0, 0], [1, 0], [0, 1])]
     rest = np.setdiff1d(np.arange(len(pts)), first)
     return pts[np.concatenate([first, rest])]
+
+
+def curved_triangle_nodes(cm: Any, degree: int, kind: str) -> Float:
+    """Images of the degree-``degree`` reference nodes of every local triangle of the
+    conforming mesh ``cm`` under the map ``kind``, ``(cells, ndofs, 2)``
+    (:func:`~dolfinx_universal.curved.maps_tri.map_nodes` on all of them)."""
+    return maps_tri.map_nodes(
+        cm.cells, cm.x, cm.background_x, cm.sign, degree, kind, cm.boundary.closest_point
+    )
 
 
 def _eval(expr: fem.Expression, msh: dmesh.Mesh, cells: npt.NDArray, shape: tuple) -> Float:

@@ -9,9 +9,10 @@ import pytest
 import ufl
 from dolfinx import fem
 from dolfinx.fem.petsc import LinearProblem
+from mesh_checks import curved_triangle_nodes
 
 import dolfinx_universal as du
-from dolfinx_universal.curved.maps import _cell_nodes, jacobian_ratio
+from dolfinx_universal.curved.maps import jacobian_ratio
 from dolfinx_universal.curved.maps_tri import map_nodes, reference_nodes, transfinite_map
 
 comm = MPI.COMM_WORLD
@@ -94,7 +95,7 @@ def test_each_cell_projects_the_points_of_its_own_pattern(disc, degree, per_cell
 def test_nodes_consistent_and_on_gamma(disc, degree):
     cv = du.curved_mesh(disc, degree, "I")
     x, dofmap = cv.mesh.geometry.x[:, :2], cv.mesh.geometry.dofmaps[0]
-    nodes = _cell_nodes(disc, degree, "G")
+    nodes = curved_triangle_nodes(disc, degree, "G")
     # Every cell sees the node values it computed itself: neighbours agree on shared nodes
     # (the same formulas from either side: an ulp or two).
     assert np.abs(x[dofmap] - nodes).max() < 1e-14
@@ -125,7 +126,7 @@ def test_boundary_dof_data(disc):
 
 def test_I_and_Itilde_differ_only_where_expected(disc):
     k = 2
-    a, b = _cell_nodes(disc, k, "G"), _cell_nodes(disc, k, "G~")
+    a, b = curved_triangle_nodes(disc, k, "G"), curved_triangle_nodes(disc, k, "G~")
     pc = disc.positively_cut
     assert np.array_equal(a[~pc], b[~pc])  # affine cells: identical
     assert np.array_equal(a[:, :3], b[:, :3])  # vertices: identical

@@ -329,7 +329,7 @@ def test_gamma_h_loops_match_a_graph_search():
     from scipy.sparse import coo_matrix
     from scipy.sparse.csgraph import connected_components
 
-    from dolfinx_universal.conforming.checks import _loops
+    from dolfinx_universal.conforming.checks_tri import _loops
 
     rng = np.random.default_rng(0)
     for trial in range(60):

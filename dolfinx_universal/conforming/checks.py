@@ -11,7 +11,6 @@ import numpy.typing as npt
 
 from dolfinx_universal.cells.kit import cell_kernels
 from dolfinx_universal.cells.tet import EDGES, soa_corners, soa_det6, soa_dihedral, soa_sq, soa_sub
-from dolfinx_universal.conforming.checks_tri import _loops as _loops
 from dolfinx_universal.conforming.checks_tri import gamma_h_topology
 from dolfinx_universal.conforming.locate import (
     CONTAINMENT_SAMPLES,

@@ -52,13 +52,6 @@ CELL_MAPS: dict[int, ModuleType] = {2: maps_tri, 3: maps_tet}
 ``coordinate_geometry``, ``tangents``)."""
 
 
-def _cell_nodes(cm: ConformingMesh, degree: int, kind: str) -> Float:
-    """Images of the reference nodes of every local triangle of ``cm``, ``(cells, ndofs, 2)``."""
-    return maps_tri.map_nodes(
-        cm.cells, cm.x, cm.background_x, cm.sign, degree, kind, cm.boundary.closest_point
-    )
-
-
 def _curved_cells(
     cm: ConformingMesh, degree: int, kind: str
 ) -> tuple[npt.NDArray[np.intp], Callable[[npt.NDArray, Float], Float]]:
