@@ -611,3 +611,59 @@ def tetrahedron_repair(
         total += moved
         pe = gamma_h(imv, s, c2v, near.owned, near.scan)
     return pe, total
+
+
+def frozen_images(
+    x: Float,
+    on_gamma: Bool,
+    relocated: Bool,
+    pushed_mask: Bool,
+    phi: Float,
+    closest: Float,
+    normal: Float,
+    h: Float,
+    R_r: Float,
+    alpha: float,
+    band: Int,
+) -> tuple[Float, Float]:
+    """``M_h`` of one triangulation for another position of Gamma: the images a step's
+    classification gives (its signs, positive facets, relocated vertices and band frozen)
+    when the projections are those of the other position.
+
+    For the step's own position these are :func:`map_band`'s images, bitwise; for the
+    others the same formulas for the same vertices, smooth in Gamma (the inward push of
+    the step's pushed vertices continues linearly in ``phi`` beyond the relaxation radius
+    and beyond Gamma, where :func:`map_band` would clip it: a kink in time), so that a
+    node follows a smooth path while Gamma moves and the triangulation stays.
+
+    Parameters
+    ----------
+    x
+        Original vertex positions ``(num_vertices, gdim)``.
+    on_gamma, relocated, pushed_mask
+        The frozen classification: vertices of positive facets, vertices the eta
+        perturbation moved onto Gamma, vertices pushed inwards ``(num_vertices,)``.
+    phi, closest, normal
+        Signed distances, closest points and normals of the band's vertices for the other
+        position (rows outside ``band`` are not read).
+    h, R_r, alpha, band
+        As in :func:`map_band`.
+
+    Returns
+    -------
+    xp
+        The perturbed positions (relocated vertices on the other position's Gamma).
+    y
+        The images ``(num_vertices, gdim)``.
+    """
+    xp = x.copy()
+    moved = band[relocated[band]]
+    xp[moved] = closest[moved]
+    y = xp.copy()
+    if alpha != 0.0:
+        pushed = band[pushed_mask[band]]
+        f = alpha * h[pushed] * (1.0 + phi[pushed] / R_r[pushed])
+        y[pushed] -= f[:, None] * normal[pushed]
+    snapped = band[on_gamma[band]]
+    y[snapped] = closest[snapped]
+    return xp, y

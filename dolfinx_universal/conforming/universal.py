@@ -28,6 +28,7 @@ from dolfinx_universal.conforming.kit import conforming_kit
 from dolfinx_universal.conforming.relax import RelaxFrame, movable_vertices, relax_vertices
 from dolfinx_universal.conforming.snap import (
     classify_near,
+    frozen_images,
     gamma_h,
     map_band,
     perturb,
@@ -37,6 +38,7 @@ from dolfinx_universal.core.arrays import Bool, Float, Int, mirror_line
 from dolfinx_universal.core.collective import (
     MeshingError,
     Problem,
+    collective_call,
     raise_collective,
 )
 
@@ -518,6 +520,41 @@ class UniversalMesh:
             max_conditioning_angle=float(np.degrees(max_theta)), moved_angle_range=angle_range,
             num_loops=num_loops, num_pieces=num_pieces,
         )  # fmt: skip
+
+    def images_at(self, boundary: Boundary, sm: StraightMap) -> tuple[Float, Float, Float]:
+        """The vertex images that ``sm``'s triangulation takes for another position of Gamma
+        (collective): :func:`~dolfinx_universal.conforming.snap.frozen_images` with the
+        projections of the band's vertices onto ``boundary``.
+
+        The relaxation's moves are not in them (they are no function of Gamma). Used by
+        time integrators to follow a node along a smooth path over the steps of one
+        triangulation (:meth:`~dolfinx_universal.moving.domain.MovingDomain.nodes_at`).
+
+        Returns
+        -------
+        xp, y
+            The perturbed positions and the images ``(num_vertices, gdim)``.
+        normal
+            The normals at the band's vertices' closest points on ``boundary`` (zero
+            elsewhere) ``(num_vertices, gdim)``.
+        """
+        x = self._x
+        band = np.flatnonzero(np.isfinite(sm.phi))
+        phi = np.zeros(len(x))
+        closest = np.zeros_like(x)
+        normal = np.zeros_like(x)
+        phi[band], closest[band], normal[band] = collective_call(
+            self.comm, "closest-point projection", boundary.project_normal, x[band]
+        )
+        relocated = np.zeros(len(x), dtype=bool)
+        relocated[band] = (sm.x[band] != x[band]).any(axis=1)
+        # the vertices map_band pushed inwards (its mask for sm's distances)
+        pushed = ~sm.on_gamma & (sm.phi < 0) & (sm.phi > -self.R_r)
+        xp, y = frozen_images(
+            x, sm.on_gamma, relocated, pushed, phi, closest, normal, self.h, self.R_r,
+            self._push, band,
+        )  # fmt: skip
+        return xp, y, normal
 
     def _check_gamma_h(
         self,

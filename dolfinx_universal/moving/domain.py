@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from typing import Any
 
@@ -104,6 +104,11 @@ def _far_extreme(
             return float(values[head[np.argmax(hit)]])
     return None
 
+
+BRANCH_ANGLE = 45.0
+"""Degrees between the normals at a vertex's closest points on two positions of Gamma
+beyond which :meth:`MovingDomain.nodes_at` takes its projection to have jumped to another
+branch (a vertex near the medial axis): its path is then held at its current place."""
 
 _HEAD = 4096
 """Cells of the sorted order :func:`_far_extreme` tries before the whole order."""
@@ -208,6 +213,8 @@ class MovingDomain:
         self._kept_histogram = np.zeros(self._unaltered.HISTOGRAM_BINS, dtype=np.int64)
         self._active_tags: dmesh.MeshTags | None = self._tags()
         self.steps: list[StepReport] = []
+        self._step_map: tuple[StraightMap, Boundary] | None = None
+        self._images: tuple[npt.NDArray[np.float64], ...] | None = None
         self._coverage: tuple[SizeField, npt.NDArray[np.float64], int, float | None] | None = None
 
     @classmethod
@@ -434,6 +441,82 @@ class MovingDomain:
         self.steps.append(report)
         return report
 
+    @property
+    def active_mask(self) -> npt.NDArray[np.bool_]:
+        """Whether each process-local cell (owned and ghost) is active (in ``T_h^sub``)."""
+        return self._kept
+
+    def nodes_at(self, boundaries: Sequence[Boundary]) -> list[npt.NDArray[np.float64]]:
+        """The geometry nodes that the current triangulation takes for other positions of
+        Gamma: paths of the nodes through them (collective; nothing is changed).
+
+        The classification of the last :meth:`update` (signs, snapped and relocated
+        vertices, active cells, which cells are curved) is kept, and the vertex images and
+        curved nodes are computed for each of ``boundaries``: for the last step's boundary
+        these are the current nodes (bitwise without the relaxation), and for the positions
+        of a smooth motion near it each node follows a smooth path in time. Vertices whose
+        image is no smooth function of Gamma keep their current place along the paths (on
+        Gamma: slide onto it): those the relaxation moved, and those whose closest point
+        jumps between the branches of the projection over ``boundaries`` (vertices near
+        the medial axis pushed inwards by ``M_h``; normals more than
+        :data:`BRANCH_ANGLE` apart). Time integrators take the mesh velocity and the
+        previous solutions along these paths
+        (:class:`~dolfinx_universal.moving.stepping.TimeStepper`).
+
+        Returns
+        -------
+        For each boundary, the nodes ``(num_nodes, gdim)`` (process-local, owned and ghost).
+        """
+        if self._step_map is None:
+            raise RuntimeError("nodes_at needs a triangulation: call update first")
+        sm, now = self._step_map
+        images = [self.universal.images_at(b, sm) for b in boundaries]
+        band = np.flatnonzero(np.isfinite(sm.phi))
+        fixed = self._relaxed_vertices().copy()
+        normal_now = self._now_normals()
+        cos = np.cos(np.radians(BRANCH_ANGLE))
+        for _, _, normal in images:
+            fixed[band] |= np.einsum("nd,nd->n", normal[band], normal_now[band]) < cos
+        fixed = vertex_reduce(self.mesh.topology.index_map(0), fixed.astype(np.float64), "max") > 0
+        near = np.flatnonzero(self._dirty)
+        cells = self._c2v[near]
+        cut = np.flatnonzero(sm.kept[near] & positively_cut(sm.sign, cells))
+        positive = self._c2f[near[cut], np.argmin(sm.sign[cells[cut]], axis=1)]
+        out = []
+        for boundary, (xp, y, _) in zip(boundaries, images, strict=True):
+            if fixed.any():
+                xp[fixed] = sm.x[fixed]  # the background place the curved map blends from
+                inside = fixed & ~sm.on_gamma
+                y[inside] = sm.y[inside]
+                sliding = np.flatnonzero(fixed & sm.on_gamma)
+                y[sliding] = collective_call(
+                    self.comm, "closest-point projection", boundary.closest_point, sm.y[sliding]
+                )
+            curve, nodes = self._curved_nodes(replace(sm, x=xp, y=y), boundary, near, cut, positive)
+            x = self.mesh.geometry.x.copy()
+            self._write_nodes(y, near, curve, sm.kept[near], nodes, x)
+            out.append(x[:, : self.tdim])
+        return out
+
+    def _now_images(self) -> tuple[npt.NDArray[np.float64], ...]:
+        """:meth:`~dolfinx_universal.conforming.universal.UniversalMesh.images_at` of the
+        last step's own boundary (collective, once per step)."""
+        if self._images is None:
+            sm, now = self._step_map  # type: ignore[misc]
+            self._images = self.universal.images_at(now, sm)
+        return self._images
+
+    def _now_normals(self) -> npt.NDArray[np.float64]:
+        return self._now_images()[2]
+
+    def _relaxed_vertices(self) -> npt.NDArray[np.bool_]:
+        """Vertices whose image the relaxation of the last step moved (collective)."""
+        sm, now = self._step_map  # type: ignore[misc]
+        if not self.universal.relax:
+            return np.zeros(len(sm.y), dtype=bool)
+        xp, y, _ = self._now_images()
+        return (y != sm.y).any(axis=1) | (xp != sm.x).any(axis=1)
+
     def _straight_map(self, boundary: Boundary) -> StraightMap:
         """The straight map ``M_h`` of the step, after the coverage check of
         :meth:`from_motion`'s background (collective); its errors name the step."""
@@ -520,17 +603,23 @@ class MovingDomain:
         curve: npt.NDArray[np.intp],
         kept: npt.NDArray[np.bool_],
         nodes: npt.NDArray[np.float64],
+        x: npt.NDArray[np.float64] | None = None,
     ) -> None:
-        """Write the nodes of the cells ``redo`` in place: the affine ones, then the curved
-        cells' (inactive ones first, so that on Gamma_h the active cell's curved nodes
-        win), and copy them to the ghosts (collective)."""
-        x = self.mesh.geometry.x
+        """Write the nodes of the cells ``redo`` in place (into the mesh, or into the copy
+        ``x`` of its nodes): the affine ones, then the curved cells' (inactive ones first,
+        so that on Gamma_h the active cell's curved nodes win), and copy them to the ghosts
+        (collective)."""
+        into_mesh = x is None
+        x = self.mesh.geometry.x if x is None else x
         touched = self._write_affine_nodes(redo, y, x)
         order = np.argsort(kept[curve], kind="stable")
         written = redo[curve[order]]
         write_cell_nodes(x, self._dofmap, written, nodes, order)
         rows = np.concatenate([touched, self._dofmap[written].ravel()])
-        self._sync_ghost_nodes(rows, x)
+        if into_mesh:
+            self._sync_ghost_nodes(rows, x)
+        else:
+            self._sync_ghost_copy(x)
 
     def _set_domain(
         self,
@@ -548,6 +637,8 @@ class MovingDomain:
         self._kept_histogram += self._histogram(owned[kept_now])
         self._kept_histogram -= self._histogram(owned[~kept_now])
         self._dirty, self._kept = near, sm.kept
+        self._step_map = (sm, boundary)
+        self._images = None  # found when asked for (nodes_at)
         self.active.x.array[self._cell_dof[redo]] = sm.kept[redo].astype(np.float64)
         self.active_cells = np.flatnonzero(sm.kept).astype(np.int32)
         self._active_tags = None  # made when asked for (active_tags)
@@ -641,6 +732,18 @@ class MovingDomain:
         self._node_vector.scatter_forward()
         n = self.mesh.geometry.index_map().size_local
         x[n:, :d] = values[n:]
+
+    def _sync_ghost_copy(self, x: npt.NDArray[np.float64]) -> None:
+        """Copy the owners' values of all nodes of ``x`` (a copy of the mesh's) to their
+        ghosts (collective)."""
+        if self.comm.size == 1:
+            return
+        d = self.tdim
+        vector = la.vector(self.mesh.geometry.index_map(), d, dtype=np.float64)
+        vector.array[:] = x[:, :d].ravel()
+        vector.scatter_forward()
+        n = self.mesh.geometry.index_map().size_local
+        x[n:, :d] = vector.array.reshape(-1, d)[n:]
 
     def _check_coverage(self, boundary: Boundary) -> None:
         """Raise if ``boundary`` needs a finer background than :meth:`from_motion` built."""

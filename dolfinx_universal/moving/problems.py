@@ -199,11 +199,12 @@ def _fill_pattern(A, form: ActiveForm) -> None:
 
     V0, V1 = (arg.ufl_function_space() for arg in form.ufl_form.arguments())
     u, v = ufl.TrialFunction(V1), ufl.TestFunction(V0)
-    if u.ufl_shape == v.ufl_shape:
+    facets = any(itg.integral_type() == "interior_facet" for itg in form.ufl_form.integrals())
+    if u.ufl_shape == v.ufl_shape and not facets:
         zero = fem.Constant(form.md.mesh, np.zeros((), dtype=PETSc.ScalarType))
         dx = ufl.dx(domain=form.md.mesh, metadata={"quadrature_degree": 0})
         assemble_matrix(A, fem.form(zero * ufl.inner(u, v) * dx))
-    else:  # the form itself, on every cell
+    else:  # the form itself, on every cell (and facet: their pairs of cells couple)
         assemble_matrix(A, form.full)
     A.assemble()
 

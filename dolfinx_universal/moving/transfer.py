@@ -1,0 +1,344 @@
+"""Carry finite element functions between two geometries of one moving mesh.
+
+A :class:`~dolfinx_universal.moving.domain.MovingDomain` keeps its topology and dofmaps for
+every step; only the geometry nodes and the active cells change. A function of a step is
+its dof values with that step's nodes. :class:`NodeTransfer` gives the dof values of the
+same function for other nodes (those of the next triangulation): where a cell is active
+in both and its nodes did not move the values are kept; elsewhere each moved dof is the
+old function evaluated at its new place, located among the old active cells around it;
+a place outside the old domain (a cell that has just entered) takes the value of the
+polynomial of the nearest old active cell, continued outside it: an extension of the
+same order as the interpolation (Gawlik & Lew 2014 extend the solution to entering nodes
+in the same way).
+"""
+
+from __future__ import annotations
+
+import basix
+import numpy as np
+import numpy.typing as npt
+from dolfinx import fem, la
+from scipy.spatial import cKDTree
+
+from dolfinx_universal.core.collective import Problem, raise_collective
+
+__all__ = ["NodeTransfer"]
+
+NEWTON_STEPS = 12
+"""Newton steps of the pull-back onto a curved cell (quadratic convergence from the affine
+start: 3-5 steps reach rounding for the cells of a valid mesh)."""
+
+SAME_PLACE = 1e-13
+"""Nodes closer than this times the mesh's extent count as unmoved: a dof at the same place
+keeps its value (evaluating it there would give it back up to rounding)."""
+
+NEWTON_TOLERANCE = 1e-11
+"""Largest residual of a pull-back, relative to the cell's size, taken as converged (a
+point far outside a curved cell may lie beyond the reach of its map's continuation)."""
+
+INSIDE = 1e-10
+"""A point whose smallest barycentric coordinate in a cell is above ``-INSIDE`` is in it."""
+
+NEAREST = 12
+"""Old active cells (nearest centroids) tried for a point outside the old cells around it."""
+
+
+def _csr(
+    rows: npt.NDArray[np.int32], n: int
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+    """The transpose of the cell -> vertex table ``rows (m, k)``: offsets and cells."""
+    flat = rows.ravel()
+    order = np.argsort(flat, kind="stable")
+    offsets = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(flat, minlength=n), out=offsets[1:])
+    return offsets, (order // rows.shape[1]).astype(np.int64)
+
+
+class NodeTransfer:
+    """Dof values of functions of ``V`` for other geometry nodes of the same mesh.
+
+    Parameters
+    ----------
+    mesh
+        The moving mesh (its topology and geometry dofmap; its nodes are not read).
+    cell_vertices
+        Vertices of the process-local cells ``(num_cells, tdim + 1)``.
+    V
+        A (blocked) Lagrange space on ``mesh``.
+    """
+
+    def __init__(self, mesh, cell_vertices: npt.NDArray[np.int32], V: fem.FunctionSpace) -> None:
+        self.V = V
+        self.tdim = tdim = mesh.topology.dim
+        cmap = mesh.geometry.cmaps[0]
+        self._geometry = basix.create_element(
+            basix.ElementFamily.P,
+            basix.CellType.triangle if tdim == 2 else basix.CellType.tetrahedron,
+            cmap.degree,
+            basix.LagrangeVariant(int(cmap.variant)),
+        )
+        self._gdofmap = mesh.geometry.dofmaps[0]
+        self._basis = V.element.basix_element
+        points = V.element.interpolation_points
+        self._N = self._geometry.tabulate(0, points)[0, :, :, 0]  # (ndofs of V, nodes)
+        self._dofmap = V.dofmap.list
+        self._bs = V.dofmap.index_map_bs
+        self._owned = V.dofmap.index_map.size_local
+        self._c2v = cell_vertices
+        self._v2c = _csr(cell_vertices, int(cell_vertices.max(initial=-1)) + 1)
+        self._comm = mesh.comm
+        self._work = la.vector(V.dofmap.index_map, self._bs)
+        self._flag = la.vector(V.dofmap.index_map, 1)
+
+    # -- geometry -------------------------------------------------------------------------
+
+    def moved_cells(
+        self,
+        x_old: npt.NDArray[np.float64],
+        active_old: npt.NDArray[np.bool_],
+        x_new: npt.NDArray[np.float64],
+        active_new: npt.NDArray[np.bool_],
+        also: npt.NDArray[np.bool_] | None = None,
+    ) -> npt.NDArray[np.int64]:
+        """The cells active for ``x_new`` whose dofs need new values: a node moved (or is
+        marked in ``also``), or the cell was not active for ``x_old``."""
+        scale = float(np.abs(x_new).max(initial=1.0))
+        moved = (np.abs(x_new - x_old) > SAME_PLACE * scale).any(axis=1)
+        if also is not None:
+            moved |= also
+        cells = np.flatnonzero(active_new)
+        hit = moved[self._gdofmap[cells]].any(axis=1) | ~active_old[cells]
+        return cells[hit]
+
+    def pull_back(
+        self,
+        points: npt.NDArray[np.float64],
+        cells: npt.NDArray[np.int64],
+        x: npt.NDArray[np.float64],
+    ) -> npt.NDArray[np.float64]:
+        """Reference coordinates of ``points (n, tdim)`` in ``cells (n,)`` of the geometry
+        ``x``: Newton's method on the degree-q map from the affine map's inverse (valid
+        for points outside the cell too: the map's polynomial continued); NaN where it
+        does not converge."""
+        d = self.tdim
+        nodes = x[self._gdofmap[cells], :d]  # (n, nodes, d)
+        v0 = nodes[:, 0]
+        J = np.stack([nodes[:, k + 1] - v0 for k in range(d)], axis=2)
+        X = np.linalg.solve(J, (points - v0)[..., None])[..., 0]
+        if self._geometry.degree == 1 or len(points) == 0:
+            return X
+        for _ in range(NEWTON_STEPS):
+            tab = self._geometry.tabulate(1, X)[..., 0]  # (1 + d, n, nodes)
+            F = np.einsum("ng,ngd->nd", tab[0], nodes) - points
+            J = np.einsum("kng,ngd->ndk", tab[1:], nodes)
+            dX = np.linalg.solve(J, F[..., None])[..., 0]
+            X -= dX
+            if np.abs(dX).max() < 1e-15:
+                break
+        F = np.einsum("ng,ngd->nd", self._geometry.tabulate(0, X)[0, ..., 0], nodes) - points
+        size = np.abs(J).max(axis=(1, 2))
+        X[~(np.abs(F).max(axis=1) <= NEWTON_TOLERANCE * size)] = np.nan  # no convergence
+        return X
+
+    def _best_cells(
+        self,
+        points: npt.NDArray[np.float64],
+        start: npt.NDArray[np.int64],
+        x_old: npt.NDArray[np.float64],
+        active_old: npt.NDArray[np.bool_],
+    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
+        """For each point, the old active cell that holds it (or, outside the old domain,
+        the one it is least far outside of), its reference coordinates, and whether one
+        was found.
+
+        The candidates are ``start`` (most points move within their cell), then for the
+        others the old active cells sharing a vertex with it, and for the points in none of
+        them (the boundary moved by more than a cell layer) the :data:`NEAREST` old active
+        cells with the nearest centroids."""
+        n = len(points)
+        best = np.full(n, -1, dtype=np.int64)
+        score = np.full(n, -np.inf)
+        X = np.zeros((n, self.tdim))
+        own = np.column_stack([np.arange(n), start])
+        self._choose(own[active_old[start]], points, x_old, best, score, X)
+        out = np.flatnonzero(score < -INSIDE)  # most points stay in their cell
+        offsets, v2c = self._v2c
+        v = self._c2v[start[out]].ravel()
+        counts = offsets[v + 1] - offsets[v]
+        cand = v2c[np.repeat(offsets[v], counts) + _ranges(counts)]
+        pts = np.repeat(np.repeat(out, self.tdim + 1), counts)
+        pairs = np.unique(np.column_stack([pts, cand]), axis=0)
+        self._choose(pairs[active_old[pairs[:, 1]]], points, x_old, best, score, X)
+        far = np.flatnonzero(score < -INSIDE)
+        old = np.flatnonzero(active_old)
+        if len(far) and len(old):
+            centroids = x_old[self._gdofmap[old][:, : self.tdim + 1], : self.tdim].mean(axis=1)
+            k = min(NEAREST, len(old))
+            near = cKDTree(centroids).query(points[far], k=k)[1].reshape(len(far), k)
+            more = np.column_stack([np.repeat(far, k), old[near.ravel()]])
+            self._choose(more, points, x_old, best, score, X)
+        return best, X, best >= 0
+
+    def _choose(
+        self,
+        pairs: npt.NDArray[np.int64],
+        points: npt.NDArray[np.float64],
+        x_old: npt.NDArray[np.float64],
+        best: npt.NDArray[np.int64],
+        score: npt.NDArray[np.float64],
+        X: npt.NDArray[np.float64],
+    ) -> None:
+        """Keep for each point of the ``(point, cell)`` pairs the cell with the largest
+        smallest barycentric coordinate (positive inside), if larger than ``score``'s."""
+        if len(pairs) == 0:
+            return
+        Xp = self.pull_back(points[pairs[:, 0]], pairs[:, 1], x_old)
+        lam = np.column_stack([1.0 - Xp.sum(axis=1), Xp]).min(axis=1)
+        lam[np.isnan(lam)] = -np.inf  # the map's continuation did not reach the point
+        order = np.lexsort((-lam, pairs[:, 0]))
+        first = order[np.r_[True, pairs[order[1:], 0] != pairs[order[:-1], 0]]]
+        p = pairs[first, 0]
+        better = lam[first] > score[p]
+        p, first = p[better], first[better]
+        best[p], score[p], X[p] = pairs[first, 1], lam[first], Xp[first]
+
+    # -- values ---------------------------------------------------------------------------
+
+    def carry(
+        self,
+        values: npt.NDArray[np.float64],
+        x_old: npt.NDArray[np.float64],
+        active_old: npt.NDArray[np.bool_],
+        x_new: npt.NDArray[np.float64],
+        active_new: npt.NDArray[np.bool_],
+    ) -> npt.NDArray[np.float64]:
+        """The dof values ``(num_dofs * bs,)`` (owned and ghost) of the function ``values``
+        of the geometry ``x_old`` (active cells ``active_old``) for the geometry ``x_new``
+        (collective).
+
+        Dofs of cells active for both with unmoved nodes keep their values; the other dofs
+        of the new active cells are the old function at their new places (continued from
+        the nearest old active cell outside the old domain); dofs of no new active cell
+        keep their old values.
+
+        Raises
+        ------
+        MeshingError
+            On every rank when a moved dof finds no old active cell (there are none).
+        """
+        bs, out = self._bs, values.copy()
+        cells = self.moved_cells(x_old, active_old, x_new, active_new)
+        dof, cell, slot = self._dofs(cells)
+        points = np.einsum("ng,ngd->nd", self._N[slot], x_new[self._gdofmap[cell], : self.tdim])
+        best, X = self._located(points, cell, x_old, active_old)
+        if len(dof):
+            phi = self._basis.tabulate(0, X)[0, :, :, 0]  # (n, ndofs)
+            old = values.reshape(-1, bs)[self._dofmap[best]]  # (n, ndofs, bs)
+            out.reshape(-1, bs)[dof] = np.einsum("na,nab->nb", phi, old)
+        if self._comm.size > 1:
+            self._from_ghosts(out, dof)
+        return out
+
+    def carry_slope(
+        self,
+        slope: npt.NDArray[np.float64],
+        values: npt.NDArray[np.float64],
+        w_old: npt.NDArray[np.float64],
+        x_old: npt.NDArray[np.float64],
+        active_old: npt.NDArray[np.bool_],
+        x_new: npt.NDArray[np.float64],
+        w_new: npt.NDArray[np.float64],
+        active_new: npt.NDArray[np.bool_],
+    ) -> npt.NDArray[np.float64]:
+        """A time derivative along the nodes' paths carried onto other paths (collective).
+
+        ``slope`` is ``d/dt u(x(t), t)`` along paths with nodes ``x_old`` moving at
+        ``w_old (num_nodes, gdim)``; along paths through ``x_new`` moving at ``w_new`` it is
+        ``slope + (w_new - w_old) · ∇u`` (both ``∂_t u + w · ∇u``), with ``u`` the function
+        ``values``. Dofs whose node and velocity are unchanged keep their slope; the others
+        take the old slope, velocity and gradient at their new places (continued from the
+        nearest old active cell outside the old domain).
+        """
+        bs, d, out = self._bs, self.tdim, slope.copy()
+        scale = float(np.abs(w_new).max(initial=0.0)) + float(np.abs(w_old).max(initial=0.0))
+        faster = (np.abs(w_new - w_old) > SAME_PLACE * max(scale, 1e-300)).any(axis=1)
+        cells = self.moved_cells(x_old, active_old, x_new, active_new, faster)
+        dof, cell, slot = self._dofs(cells)
+        points = np.einsum("ng,ngd->nd", self._N[slot], x_new[self._gdofmap[cell], :d])
+        w_p = np.einsum("ng,ngd->nd", self._N[slot], w_new[self._gdofmap[cell], :d])
+        best, X = self._located(points, cell, x_old, active_old)
+        if len(dof):
+            tab = self._basis.tabulate(1, X)[..., 0]  # (1 + d, n, ndofs)
+            gtab = self._geometry.tabulate(1, X)[..., 0]  # (1 + d, n, nodes)
+            nodes = x_old[self._gdofmap[best], :d]
+            J = np.einsum("kng,ngd->ndk", gtab[1:], nodes)
+            u = values.reshape(-1, bs)[self._dofmap[best]]  # (n, ndofs, bs)
+            ref = np.einsum("kna,nab->nbk", tab[1:], u)  # reference gradient (n, bs, d)
+            grad = np.linalg.solve(np.swapaxes(J, 1, 2)[:, None], ref[..., None])[..., 0]
+            w_o = np.einsum("ng,ngd->nd", gtab[0], w_old[self._gdofmap[best], :d])
+            k = np.einsum("na,nab->nb", tab[0], slope.reshape(-1, bs)[self._dofmap[best]])
+            out.reshape(-1, bs)[dof] = k + np.einsum("nbk,nk->nb", grad, w_p - w_o)
+        if self._comm.size > 1:
+            self._from_ghosts(out, dof)
+        return out
+
+    def _dofs(
+        self, cells: npt.NDArray[np.int64]
+    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.int64]]:
+        """The dofs of ``cells`` (each once), one cell holding each and the slot there."""
+        dofs = self._dofmap[cells]
+        dof, at = np.unique(dofs.ravel(), return_index=True)
+        return dof, cells[at // dofs.shape[1]], at % dofs.shape[1]
+
+    def _located(
+        self,
+        points: npt.NDArray[np.float64],
+        cell: npt.NDArray[np.int64],
+        x_old: npt.NDArray[np.float64],
+        active_old: npt.NDArray[np.bool_],
+    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
+        """:meth:`_best_cells`, raising on every rank where a point has no old cell."""
+        best, X, found = self._best_cells(points, cell, x_old, active_old)
+        raise_collective(
+            self._comm,
+            []
+            if found.all()
+            else [
+                Problem(
+                    "{count} dofs have no active cell of the previous step, at {where}: "
+                    "the previous domain is empty on this rank's part of the mesh",
+                    points[~found],
+                    int((~found).sum()),
+                )
+            ],
+        )
+        return best, X
+
+    def _from_ghosts(self, out: npt.NDArray[np.float64], dof: npt.NDArray[np.int64]) -> None:
+        """Give each owned dof the value its owner computed, or else the mean of the values
+        the ranks holding it as a ghost computed (a rank may hold a moved active cell of a
+        dof whose owner holds none), and the ghosts their owners' values (collective)."""
+        bs, n = self._bs, self._owned
+        work, flag = self._work, self._flag
+        computed = np.zeros(len(flag.array))
+        computed[dof] = 1.0
+        mine = computed[:n] > 0
+        flag.array[:] = computed
+        flag.array[:n] = 0.0
+        work.array[:] = 0.0
+        work.array.reshape(-1, bs)[n:] = out.reshape(-1, bs)[n:] * computed[n:, None]
+        flag.scatter_reverse(la.InsertMode.add)
+        work.scatter_reverse(la.InsertMode.add)
+        count = flag.array[:n]
+        take = ~mine & (count > 0)
+        owned = out.reshape(-1, bs)[:n]
+        owned[take] = work.array.reshape(-1, bs)[:n][take] / count[take, None]
+        work.array[:] = out
+        work.scatter_forward()
+        out[:] = work.array
+
+
+def _ranges(counts: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
+    """``concatenate([arange(c) for c in counts])``, without the loop."""
+    ends = np.cumsum(counts)
+    return np.arange(ends[-1] if len(ends) else 0) - np.repeat(ends - counts, counts)
