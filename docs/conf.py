@@ -90,7 +90,7 @@ html_sidebars = {
 # The contents of the start page (its toctree, included by index.md): the pages present,
 # in this order, so that a page written later (measurements.md, from the benchmarks'
 # results) joins once it is there.
-CONTENTS = ["install", "method", "mpi", "demos", "gallery", "measurements", "api"]
+CONTENTS = ["install", "method", "time_dependent", "mpi", "demos", "gallery", "measurements", "api"]
 _contents = DOCS / "_autogen" / "contents.inc"
 _text = (
     "```{toctree}\n:maxdepth: 2\n:caption: Contents\n\n"

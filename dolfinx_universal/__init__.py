@@ -45,6 +45,7 @@ from dolfinx_universal.curved.maps import CurvedMesh, boundary_dof_data, curved_
 from dolfinx_universal.meshing.domain import Certificate, MeshedDomain, mesh_domain
 from dolfinx_universal.moving.domain import MovingDomain
 from dolfinx_universal.moving.problems import MovingLinearProblem, MovingStokes
+from dolfinx_universal.moving.stepping import TimeStepper
 from dolfinx_universal.sizing.fields import box_size, mark_cells, refine_size, threshold
 
 try:
@@ -76,6 +77,7 @@ __all__ = [
     "SlipConstraint",
     "Sphere",
     "Surface",
+    "TimeStepper",
     "Torus",
     "UniversalMesh",
     "a15_mesh",

@@ -15,6 +15,7 @@ import pytest
 import ufl
 from conftest import needs_ranks
 from dolfinx import fem
+from jit_counter import count_jit_compilations
 
 import dolfinx_universal as du
 from dolfinx_universal.moving.problems import MovingLinearProblem
@@ -166,7 +167,9 @@ def test_runge_kutta_tableaux():
     assert np.allclose(A @ c, c**2 / 2, atol=1e-14)
 
 
-def _linear_run(scheme: str, dt: float, T: float = 0.6, c=comm, static: bool = False) -> float:
+def _linear_run(
+    scheme: str, dt: float, T: float = 0.6, c=comm, static: bool = False, jit: list | None = None
+) -> float:
     """The largest L2 error over the steps of the heat equation with a solution linear in
     space (P1, Dirichlet data on the moving ellipse)."""
     motion = (lambda t: _ellipse(0.0)) if static else _ellipse
@@ -190,10 +193,22 @@ def _linear_run(scheme: str, dt: float, T: float = 0.6, c=comm, static: bool = F
     ts.initialize(u0, ufl.diff(exact, t))
     error = fem.form(md.active * (uh - exact) ** 2 * ufl.dx)
     worst = 0.0
-    for _ in range(int(round(T / dt))):
-        ts.advance(lambda: problem.solve([fem.dirichletbc(g, md.immersed_dofs(V))]))
+    for n in range(int(round(T / dt))):
+        with count_jit_compilations() as compiled:
+            ts.advance(lambda: problem.solve([fem.dirichletbc(g, md.immersed_dofs(V))]))
+        if jit is not None and n > 0:
+            jit.append(compiled[0])
         worst = max(worst, np.sqrt(c.allreduce(fem.assemble_scalar(error), op=MPI.SUM)))
     return worst
+
+
+@pytest.mark.parametrize("scheme", ["BDF3", "ESDIRK3"])
+def test_steps_compile_nothing(scheme):
+    """After the first step (which compiles the Dirichlet data's expressions), steps only
+    set constants, functions and nodes: no form or expression is compiled again."""
+    jit: list[int] = []
+    _linear_run(scheme, 0.1, T=0.4, jit=jit)
+    assert jit == [0, 0, 0]
 
 
 @pytest.mark.parametrize("scheme", ["BDF1", "BDF2", "BDF3"])

@@ -17,10 +17,10 @@ from __future__ import annotations
 import basix
 import numpy as np
 import numpy.typing as npt
-from dolfinx import fem, la
+from dolfinx import fem
 from scipy.spatial import cKDTree
 
-from dolfinx_universal.core.collective import Problem, raise_collective
+from dolfinx_universal.core.collective import Problem, raise_collective, vertex_reduce
 
 __all__ = ["NodeTransfer"]
 
@@ -87,8 +87,6 @@ class NodeTransfer:
         self._c2v = cell_vertices
         self._v2c = _csr(cell_vertices, int(cell_vertices.max(initial=-1)) + 1)
         self._comm = mesh.comm
-        self._work = la.vector(V.dofmap.index_map, self._bs)
-        self._flag = la.vector(V.dofmap.index_map, 1)
 
     # -- geometry -------------------------------------------------------------------------
 
@@ -146,10 +144,10 @@ class NodeTransfer:
         start: npt.NDArray[np.int64],
         x_old: npt.NDArray[np.float64],
         active_old: npt.NDArray[np.bool_],
-    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
+    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """For each point, the old active cell that holds it (or, outside the old domain,
-        the one it is least far outside of), its reference coordinates, and whether one
-        was found.
+        the one it is least far outside of), its reference coordinates, and its smallest
+        barycentric coordinate there (``-inf`` where none was found).
 
         The candidates are ``start`` (most points move within their cell), then for the
         others the old active cells sharing a vertex with it, and for the points in none of
@@ -177,7 +175,7 @@ class NodeTransfer:
             near = cKDTree(centroids).query(points[far], k=k)[1].reshape(len(far), k)
             more = np.column_stack([np.repeat(far, k), old[near.ravel()]])
             self._choose(more, points, x_old, best, score, X)
-        return best, X, best >= 0
+        return best, X, score
 
     def _choose(
         self,
@@ -230,13 +228,13 @@ class NodeTransfer:
         cells = self.moved_cells(x_old, active_old, x_new, active_new)
         dof, cell, slot = self._dofs(cells)
         points = np.einsum("ng,ngd->nd", self._N[slot], x_new[self._gdofmap[cell], : self.tdim])
-        best, X = self._located(points, cell, x_old, active_old)
+        best, X, score = self._located(points, cell, x_old, active_old)
         if len(dof):
             phi = self._basis.tabulate(0, X)[0, :, :, 0]  # (n, ndofs)
             old = values.reshape(-1, bs)[self._dofmap[best]]  # (n, ndofs, bs)
             out.reshape(-1, bs)[dof] = np.einsum("na,nab->nb", phi, old)
         if self._comm.size > 1:
-            self._from_ghosts(out, dof)
+            self._from_ghosts(out, dof, score)
         return out
 
     def carry_slope(
@@ -266,7 +264,7 @@ class NodeTransfer:
         dof, cell, slot = self._dofs(cells)
         points = np.einsum("ng,ngd->nd", self._N[slot], x_new[self._gdofmap[cell], :d])
         w_p = np.einsum("ng,ngd->nd", self._N[slot], w_new[self._gdofmap[cell], :d])
-        best, X = self._located(points, cell, x_old, active_old)
+        best, X, score = self._located(points, cell, x_old, active_old)
         if len(dof):
             tab = self._basis.tabulate(1, X)[..., 0]  # (1 + d, n, ndofs)
             gtab = self._geometry.tabulate(1, X)[..., 0]  # (1 + d, n, nodes)
@@ -279,7 +277,7 @@ class NodeTransfer:
             k = np.einsum("na,nab->nb", tab[0], slope.reshape(-1, bs)[self._dofmap[best]])
             out.reshape(-1, bs)[dof] = k + np.einsum("nbk,nk->nb", grad, w_p - w_o)
         if self._comm.size > 1:
-            self._from_ghosts(out, dof)
+            self._from_ghosts(out, dof, score)
         return out
 
     def _dofs(
@@ -296,9 +294,10 @@ class NodeTransfer:
         cell: npt.NDArray[np.int64],
         x_old: npt.NDArray[np.float64],
         active_old: npt.NDArray[np.bool_],
-    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64]]:
+    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
         """:meth:`_best_cells`, raising on every rank where a point has no old cell."""
-        best, X, found = self._best_cells(points, cell, x_old, active_old)
+        best, X, score = self._best_cells(points, cell, x_old, active_old)
+        found = best >= 0
         raise_collective(
             self._comm,
             []
@@ -312,30 +311,30 @@ class NodeTransfer:
                 )
             ],
         )
-        return best, X
+        return best, X, score
 
-    def _from_ghosts(self, out: npt.NDArray[np.float64], dof: npt.NDArray[np.int64]) -> None:
-        """Give each owned dof the value its owner computed, or else the mean of the values
-        the ranks holding it as a ghost computed (a rank may hold a moved active cell of a
-        dof whose owner holds none), and the ghosts their owners' values (collective)."""
-        bs, n = self._bs, self._owned
-        work, flag = self._work, self._flag
-        computed = np.zeros(len(flag.array))
-        computed[dof] = 1.0
-        mine = computed[:n] > 0
-        flag.array[:] = computed
-        flag.array[:n] = 0.0
-        work.array[:] = 0.0
-        work.array.reshape(-1, bs)[n:] = out.reshape(-1, bs)[n:] * computed[n:, None]
-        flag.scatter_reverse(la.InsertMode.add)
-        work.scatter_reverse(la.InsertMode.add)
-        count = flag.array[:n]
-        take = ~mine & (count > 0)
-        owned = out.reshape(-1, bs)[:n]
-        owned[take] = work.array.reshape(-1, bs)[:n][take] / count[take, None]
-        work.array[:] = out
-        work.scatter_forward()
-        out[:] = work.array
+    def _from_ghosts(
+        self,
+        out: npt.NDArray[np.float64],
+        dof: npt.NDArray[np.int64],
+        score: npt.NDArray[np.float64],
+    ) -> None:
+        """Give each dof computed on some rank the value of the rank that found the best
+        cell for it (the largest smallest barycentric coordinate: a cell holding the point
+        if any rank has one; the mean over the ranks that tie), on every rank (collective).
+
+        A rank holds the cells around its dofs only up to its ghost layer: the cell holding
+        a point may be on another rank, which then gives the value."""
+        imap, bs = self.V.dofmap.index_map, self._bs
+        mine = np.full(imap.size_local + imap.num_ghosts, -np.inf)
+        mine[dof] = score
+        best = vertex_reduce(imap, mine, "max")
+        take = ((mine == best) & np.isfinite(mine)).astype(np.float64)
+        count = vertex_reduce(imap, take, "sum")
+        values = out.reshape(-1, bs)
+        total = vertex_reduce(imap, values * take[:, None], "sum")
+        hit = count > 0
+        values[hit] = total[hit] / count[hit, None]
 
 
 def _ranges(counts: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
