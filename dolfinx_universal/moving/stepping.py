@@ -35,7 +35,7 @@ from dolfinx import fem
 
 from dolfinx_universal.boundaries.base import Boundary
 from dolfinx_universal.moving.domain import MovingDomain
-from dolfinx_universal.moving.transfer import NodeTransfer
+from dolfinx_universal.moving.transfer import node_transfer
 
 __all__ = ["SCHEMES", "TimeStepper", "derivative_weights"]
 
@@ -98,6 +98,13 @@ def derivative_weights(nodes: npt.ArrayLike, at: float) -> npt.NDArray[np.float6
             total += np.prod(np.delete(at - others, m))
         c[j] = total / denom
     return c
+
+
+def _extrapolation(nodes: list[float], at: float) -> npt.NDArray[np.float64]:
+    """The Lagrange basis of ``nodes`` at ``at``: weights extrapolating values there."""
+    tau = np.asarray(nodes)
+    return np.array([np.prod([(at - tau[m]) / (tau[j] - tau[m]) for m in range(len(tau)) if m != j])
+                     for j in range(len(tau))])  # fmt: skip
 
 
 def _combine(
@@ -193,6 +200,11 @@ class TimeStepper:
         """The coefficient of the unknown in :meth:`time_derivative`."""
         self.history = fem.Function(V, name="history")
         """The previous solutions carried onto the current nodes, combined."""
+        self.extrapolation = fem.Function(V, name="extrapolation")
+        """The solution at the time :attr:`t` extrapolated from the previous ones on the
+        current nodes: of the scheme's order for BDF (for a semi-implicit treatment of
+        nonlinear terms, such as the convection of Navier–Stokes), the last stage's value
+        in a Runge–Kutta step (first order)."""
         gdim = md.tdim
         element = basix.ufl.element(
             "Lagrange",
@@ -208,7 +220,7 @@ class TimeStepper:
         node = np.empty(imap.size_local + imap.num_ghosts, dtype=np.int64)
         node[self.W.dofmap.list] = mesh.geometry.dofmaps[0]  # the same element: a node each
         self._node_of_dof = node
-        self.transfer = NodeTransfer(mesh, md.universal.cell_vertices, V)
+        self.transfer = node_transfer(mesh, md.universal.cell_vertices, V)
         self._levels: list[_Level] = []
         self._last_slope: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None = None
         self.timings = dict.fromkeys(("update", "nodes", "transfer", "solve"), 0.0)
@@ -217,11 +229,17 @@ class TimeStepper:
 
     # -- what the form uses ---------------------------------------------------------------
 
-    def time_derivative(self, u: ufl.core.expr.Expr) -> ufl.core.expr.Expr:
-        """``∂_t u`` of the integrator in ALE form: ``(alpha u - history) / dt - ∇u · w``."""
-        return (self.alpha * u - self.history) / self.dt - ufl.dot(ufl.grad(u), self.w)
+    def time_derivative(self, u: ufl.core.expr.Expr, part: int | None = None) -> ufl.core.expr.Expr:
+        """``∂_t u`` of the integrator in ALE form: ``(alpha u - history) / dt - ∇u · w``.
 
-    def dirichlet_data(self, g: ufl.core.expr.Expr) -> fem.Function:
+        ``part``: for a mixed space, the index of ``u`` among ``ufl.split`` of the unknown
+        (the velocity of a Taylor–Hood pair: ``part=0``)."""
+        h = self.history if part is None else ufl.split(self.history)[part]
+        return (self.alpha * u - h) / self.dt - ufl.dot(ufl.grad(u), self.w)
+
+    def dirichlet_data(
+        self, g: ufl.core.expr.Expr, space: fem.FunctionSpace | None = None
+    ) -> fem.Function:
         """The values of ``g`` (a UFL expression of ``x`` and :attr:`time_variable`) that a
         Dirichlet condition on the moving boundary should take at each step and stage.
 
@@ -231,13 +249,16 @@ class TimeStepper:
         (the stage order is 1; Carpenter, Gottlieb, Abarbanel & Don, SIAM J. Sci. Comput.
         16, 1995; Alonso-Mallo & Cano, 2002). The returned function (on :attr:`V`) is
         updated before every call of ``solve``; use it in ``fem.dirichletbc``.
+        ``space``: the space of the data (default :attr:`V`; for a mixed space the
+        collapsed sub-space the condition applies to).
         """
-        points = self.V.element.interpolation_points
+        space = self.V if space is None else space
+        points = space.element.interpolation_points
         value = fem.Expression(g, points)
         rate = fem.Expression(
             ufl.diff(g, self.time_variable) + ufl.dot(ufl.grad(g), self.w), points
         )
-        data = fem.Function(self.V, name="dirichlet_data")
+        data = fem.Function(space, name="dirichlet_data")
         self._data.append((value, rate, data))
         return data
 
@@ -339,9 +360,11 @@ class TimeStepper:
         c = derivative_weights([t1] + [lv.t for lv in levels], t1)
         self._set_velocity(c, nodes)
         dt = float(self.dt.value)
-        history = np.zeros_like(self.history.x.array)
-        for cj, lv, x in zip(c[1:], levels, nodes[1:], strict=True):
-            history -= cj * dt * self._carry(lv, x)
+        carried = [self._carry(lv, x) for lv, x in zip(levels, nodes[1:], strict=True)]
+        history = -dt * _combine(c[1:], carried)
+        self.extrapolation.x.array[:] = _combine(
+            _extrapolation([lv.t for lv in levels], t1), carried
+        )
         self.alpha.value = c[0] * dt
         self.history.x.array[:] = history
         self.t.value = t1
@@ -379,6 +402,7 @@ class TimeStepper:
                 slopes.append(self._carry_slope(level, nodes[0], w))
                 continue
             known = u0 + step * _combine(A[i, :i], slopes, like=u0)
+            self.extrapolation.x.array[:] = u
             self.alpha.value = 1.0 / A[i, i]
             self.history.x.array[:] = known / A[i, i]
             u = self._solve(solve)

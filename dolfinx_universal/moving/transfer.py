@@ -14,6 +14,8 @@ in the same way).
 
 from __future__ import annotations
 
+from typing import Any
+
 import basix
 import numpy as np
 import numpy.typing as npt
@@ -22,7 +24,7 @@ from scipy.spatial import cKDTree
 
 from dolfinx_universal.core.collective import Problem, raise_collective, vertex_reduce
 
-__all__ = ["NodeTransfer"]
+__all__ = ["MixedTransfer", "NodeTransfer", "node_transfer"]
 
 NEWTON_STEPS = 12
 """Newton steps of the pull-back onto a curved cell (quadratic convergence from the affine
@@ -335,6 +337,46 @@ class NodeTransfer:
         total = vertex_reduce(imap, values * take[:, None], "sum")
         hit = count > 0
         values[hit] = total[hit] / count[hit, None]
+
+
+class MixedTransfer:
+    """:class:`NodeTransfer` for a mixed space (Taylor–Hood...): each sub-space's dofs
+    carried by the transfer of its collapsed space."""
+
+    def __init__(
+        self, mesh: Any, cell_vertices: npt.NDArray[np.int32], W: fem.FunctionSpace
+    ) -> None:
+        self.parts = []
+        for i in range(W.num_sub_spaces):
+            Vi, dofs = W.sub(i).collapse()
+            rows = np.concatenate([np.asarray(a) for a in dofs]) if isinstance(dofs, list) else dofs
+            self.parts.append((NodeTransfer(mesh, cell_vertices, Vi), np.asarray(rows)))
+
+    def carry(self, values: npt.NDArray[np.float64], *geometry: Any) -> npt.NDArray[np.float64]:
+        """:meth:`NodeTransfer.carry` of each sub-space's values."""
+        out = values.copy()
+        for transfer, rows in self.parts:
+            out[rows] = transfer.carry(values[rows], *geometry)
+        return out
+
+    def carry_slope(
+        self, slope: npt.NDArray[np.float64], values: npt.NDArray[np.float64], *geometry: Any
+    ) -> npt.NDArray[np.float64]:
+        """:meth:`NodeTransfer.carry_slope` of each sub-space's slope."""
+        out = slope.copy()
+        for transfer, rows in self.parts:
+            out[rows] = transfer.carry_slope(slope[rows], values[rows], *geometry)
+        return out
+
+
+def node_transfer(
+    mesh: Any, cell_vertices: npt.NDArray[np.int32], V: fem.FunctionSpace
+) -> NodeTransfer | MixedTransfer:
+    """The transfer of ``V``: :class:`MixedTransfer` for a mixed space, else
+    :class:`NodeTransfer`."""
+    if V.ufl_element().is_mixed:
+        return MixedTransfer(mesh, cell_vertices, V)
+    return NodeTransfer(mesh, cell_vertices, V)
 
 
 def _ranges(counts: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
