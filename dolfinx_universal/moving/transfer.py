@@ -16,6 +16,8 @@ from __future__ import annotations
 
 from typing import Any
 
+from mpi4py import MPI
+
 import basix
 import numpy as np
 import numpy.typing as npt
@@ -89,6 +91,13 @@ class NodeTransfer:
         self._c2v = cell_vertices
         self._v2c = _csr(cell_vertices, int(cell_vertices.max(initial=-1)) + 1)
         self._comm = mesh.comm
+        # cells' numbers in the input mesh: the same on any number of ranks, they decide
+        # between the cells holding a point on their common boundary
+        ncells = len(cell_vertices)
+        original = np.asarray(mesh.topology.original_cell_index, dtype=np.float64)
+        self._cell_key = (
+            original[:ncells] if len(original) >= ncells else np.arange(ncells, dtype=np.float64)
+        )
 
     # -- geometry -------------------------------------------------------------------------
 
@@ -101,8 +110,8 @@ class NodeTransfer:
         also: npt.NDArray[np.bool_] | None = None,
     ) -> npt.NDArray[np.int64]:
         """The cells active for ``x_new`` whose dofs need new values: a node moved (or is
-        marked in ``also``), or the cell was not active for ``x_old``."""
-        scale = float(np.abs(x_new).max(initial=1.0))
+        marked in ``also``), or the cell was not active for ``x_old`` (collective)."""
+        scale = self._comm.allreduce(float(np.abs(x_new).max(initial=1.0)), op=MPI.MAX)
         moved = (np.abs(x_new - x_old) > SAME_PLACE * scale).any(axis=1)
         if also is not None:
             moved |= also
@@ -146,10 +155,10 @@ class NodeTransfer:
         start: npt.NDArray[np.int64],
         x_old: npt.NDArray[np.float64],
         active_old: npt.NDArray[np.bool_],
-    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    ) -> tuple[npt.NDArray[Any], ...]:
         """For each point, the old active cell that holds it (or, outside the old domain,
-        the one it is least far outside of), its reference coordinates, and its smallest
-        barycentric coordinate there (``-inf`` where none was found).
+        the one it is least far outside of), its reference coordinates, its score and the
+        cell's input number (:meth:`_choose`; score ``-inf`` where none was found).
 
         The candidates are ``start`` (most points move within their cell), then for the
         others the old active cells sharing a vertex with it, and for the points in none of
@@ -158,49 +167,57 @@ class NodeTransfer:
         n = len(points)
         best = np.full(n, -1, dtype=np.int64)
         score = np.full(n, -np.inf)
+        key = np.full(n, np.inf)
         X = np.zeros((n, self.tdim))
+        state = (best, score, key, X)
         own = np.column_stack([np.arange(n), start])
-        self._choose(own[active_old[start]], points, x_old, best, score, X)
-        out = np.flatnonzero(score < -INSIDE)  # most points stay in their cell
+        inside = self._choose(own[active_old[start]], points, x_old, state)
+        out = np.setdiff1d(np.arange(n), inside)  # most points stay inside their cell
         offsets, v2c = self._v2c
         v = self._c2v[start[out]].ravel()
         counts = offsets[v + 1] - offsets[v]
         cand = v2c[np.repeat(offsets[v], counts) + _ranges(counts)]
         pts = np.repeat(np.repeat(out, self.tdim + 1), counts)
         pairs = np.unique(np.column_stack([pts, cand]), axis=0)
-        self._choose(pairs[active_old[pairs[:, 1]]], points, x_old, best, score, X)
-        far = np.flatnonzero(score < -INSIDE)
+        self._choose(pairs[active_old[pairs[:, 1]]], points, x_old, state)
+        far = np.flatnonzero(score < 0.0)
         old = np.flatnonzero(active_old)
         if len(far) and len(old):
             centroids = x_old[self._gdofmap[old][:, : self.tdim + 1], : self.tdim].mean(axis=1)
             k = min(NEAREST, len(old))
             near = cKDTree(centroids).query(points[far], k=k)[1].reshape(len(far), k)
             more = np.column_stack([np.repeat(far, k), old[near.ravel()]])
-            self._choose(more, points, x_old, best, score, X)
-        return best, X, score
+            self._choose(more, points, x_old, state)
+        return best, X, score, key
 
     def _choose(
         self,
         pairs: npt.NDArray[np.int64],
         points: npt.NDArray[np.float64],
         x_old: npt.NDArray[np.float64],
-        best: npt.NDArray[np.int64],
-        score: npt.NDArray[np.float64],
-        X: npt.NDArray[np.float64],
-    ) -> None:
-        """Keep for each point of the ``(point, cell)`` pairs the cell with the largest
-        smallest barycentric coordinate (positive inside), if larger than ``score``'s."""
+        state: tuple[npt.NDArray[Any], ...],
+    ) -> npt.NDArray[np.int64]:
+        """Keep for each point of the ``(point, cell)`` pairs the best cell so far in
+        ``state = (best, score, key, X)``: the largest score (0 for a cell holding the
+        point, within :data:`INSIDE`; its smallest barycentric coordinate outside), then the
+        smallest input cell number (a point on the common boundary of cells takes the same
+        cell on any number of ranks). Returns the points strictly inside their chosen
+        cell."""
+        best, score, key, X = state
         if len(pairs) == 0:
-            return
+            return np.empty(0, dtype=np.int64)
         Xp = self.pull_back(points[pairs[:, 0]], pairs[:, 1], x_old)
         lam = np.column_stack([1.0 - Xp.sum(axis=1), Xp]).min(axis=1)
         lam[np.isnan(lam)] = -np.inf  # the map's continuation did not reach the point
-        order = np.lexsort((-lam, pairs[:, 0]))
+        s = np.where(lam >= -INSIDE, 0.0, lam)
+        c = self._cell_key[pairs[:, 1]]
+        order = np.lexsort((c, -s, pairs[:, 0]))
         first = order[np.r_[True, pairs[order[1:], 0] != pairs[order[:-1], 0]]]
         p = pairs[first, 0]
-        better = lam[first] > score[p]
+        better = (s[first] > score[p]) | ((s[first] == score[p]) & (c[first] < key[p]))
         p, first = p[better], first[better]
-        best[p], score[p], X[p] = pairs[first, 1], lam[first], Xp[first]
+        best[p], score[p], key[p], X[p] = pairs[first, 1], s[first], c[first], Xp[first]
+        return p[lam[first] > INSIDE]
 
     # -- values ---------------------------------------------------------------------------
 
@@ -230,13 +247,13 @@ class NodeTransfer:
         cells = self.moved_cells(x_old, active_old, x_new, active_new)
         dof, cell, slot = self._dofs(cells)
         points = np.einsum("ng,ngd->nd", self._N[slot], x_new[self._gdofmap[cell], : self.tdim])
-        best, X, score = self._located(points, cell, x_old, active_old)
+        best, X, choice = self._located(points, cell, x_old, active_old)
         if len(dof):
             phi = self._basis.tabulate(0, X)[0, :, :, 0]  # (n, ndofs)
             old = values.reshape(-1, bs)[self._dofmap[best]]  # (n, ndofs, bs)
             out.reshape(-1, bs)[dof] = np.einsum("na,nab->nb", phi, old)
         if self._comm.size > 1:
-            self._from_ghosts(out, dof, score)
+            self._from_ghosts(out, dof, choice)
         return out
 
     def carry_slope(
@@ -260,13 +277,16 @@ class NodeTransfer:
         nearest old active cell outside the old domain).
         """
         bs, d, out = self._bs, self.tdim, slope.copy()
-        scale = float(np.abs(w_new).max(initial=0.0)) + float(np.abs(w_old).max(initial=0.0))
+        scale = self._comm.allreduce(
+            float(np.abs(w_new).max(initial=0.0)) + float(np.abs(w_old).max(initial=0.0)),
+            op=MPI.MAX,
+        )  # the same threshold on every rank
         faster = (np.abs(w_new - w_old) > SAME_PLACE * max(scale, 1e-300)).any(axis=1)
         cells = self.moved_cells(x_old, active_old, x_new, active_new, faster)
         dof, cell, slot = self._dofs(cells)
         points = np.einsum("ng,ngd->nd", self._N[slot], x_new[self._gdofmap[cell], :d])
         w_p = np.einsum("ng,ngd->nd", self._N[slot], w_new[self._gdofmap[cell], :d])
-        best, X, score = self._located(points, cell, x_old, active_old)
+        best, X, choice = self._located(points, cell, x_old, active_old)
         if len(dof):
             tab = self._basis.tabulate(1, X)[..., 0]  # (1 + d, n, ndofs)
             gtab = self._geometry.tabulate(1, X)[..., 0]  # (1 + d, n, nodes)
@@ -279,7 +299,7 @@ class NodeTransfer:
             k = np.einsum("na,nab->nb", tab[0], slope.reshape(-1, bs)[self._dofmap[best]])
             out.reshape(-1, bs)[dof] = k + np.einsum("nbk,nk->nb", grad, w_p - w_o)
         if self._comm.size > 1:
-            self._from_ghosts(out, dof, score)
+            self._from_ghosts(out, dof, choice)
         return out
 
     def _dofs(
@@ -296,9 +316,9 @@ class NodeTransfer:
         cell: npt.NDArray[np.int64],
         x_old: npt.NDArray[np.float64],
         active_old: npt.NDArray[np.bool_],
-    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], tuple[npt.NDArray[Any], ...]]:
         """:meth:`_best_cells`, raising on every rank where a point has no old cell."""
-        best, X, score = self._best_cells(points, cell, x_old, active_old)
+        best, X, score, key = self._best_cells(points, cell, x_old, active_old)
         found = best >= 0
         raise_collective(
             self._comm,
@@ -313,25 +333,30 @@ class NodeTransfer:
                 )
             ],
         )
-        return best, X, score
+        return best, X, (score, key)
 
     def _from_ghosts(
         self,
         out: npt.NDArray[np.float64],
         dof: npt.NDArray[np.int64],
-        score: npt.NDArray[np.float64],
+        choice: tuple[npt.NDArray[Any], ...],
     ) -> None:
-        """Give each dof computed on some rank the value of the rank that found the best
-        cell for it (the largest smallest barycentric coordinate: a cell holding the point
-        if any rank has one; the mean over the ranks that tie), on every rank (collective).
+        """Give each dof computed on some rank the value of the rank that chose the best
+        cell for it (``choice``: the scores and cell numbers of :meth:`_choose`; the mean
+        over the ranks that chose the same cell), on every rank (collective).
 
         A rank holds the cells around its dofs only up to its ghost layer: the cell holding
         a point may be on another rank, which then gives the value."""
         imap, bs = self.V.dofmap.index_map, self._bs
+        score, key = choice
         mine = np.full(imap.size_local + imap.num_ghosts, -np.inf)
         mine[dof] = score
         best = vertex_reduce(imap, mine, "max")
-        take = ((mine == best) & np.isfinite(mine)).astype(np.float64)
+        cell = np.full(len(mine), np.inf)
+        cell[dof] = key
+        cell[mine != best] = np.inf
+        first = vertex_reduce(imap, cell, "min")
+        take = ((cell == first) & np.isfinite(cell)).astype(np.float64)
         count = vertex_reduce(imap, take, "sum")
         values = out.reshape(-1, bs)
         total = vertex_reduce(imap, values * take[:, None], "sum")
