@@ -10,7 +10,7 @@ The triangle geometry (``signed_areas``, ``cell_diameters``, ``interior_angles``
 
 from __future__ import annotations
 
-from typing import cast
+from typing import Any, cast
 
 import numpy as np
 
@@ -22,6 +22,7 @@ __all__ = [
     "FACET_ORDER",
     "conditioning_angle",
     "interior_angles",
+    "inward_push",
     "kept_cells",
     "perturbation_candidates",
     "positive_edges",
@@ -232,8 +233,16 @@ def straight_map(
     Images ``M_h(x)``, shape ``(n, gdim)``.
     """
     y = np.array(x, dtype=np.float64, copy=True)
-    relax = (~on_gamma) & (phi < 0) & (phi > -R_r)
-    f = alpha * h[relax] * (1.0 + phi[relax] / R_r[relax])
-    y[relax] -= f[:, None] * normal[relax]
+    inward_push(y, (~on_gamma) & (phi < 0) & (phi > -R_r), phi, normal, h, R_r, alpha)
     y[on_gamma] = closest[on_gamma]
     return y
+
+
+def inward_push(
+    y: Float, rows: Any, phi: Float, normal: Float, h: Float, R_r: Float, alpha: float
+) -> None:
+    """Move the vertices ``rows`` (a mask or indices) of ``y`` inwards by ``M_h``'s push
+    ``alpha h (1 + phi / R_r) N``, in place (:func:`straight_map`; continued beyond
+    ``(-R_r, 0)`` by :func:`~dolfinx_universal.conforming.snap.frozen_images`)."""
+    f = alpha * h[rows] * (1.0 + phi[rows] / R_r[rows])
+    y[rows] -= f[:, None] * normal[rows]

@@ -19,6 +19,7 @@ from dolfinx import mesh as dmesh
 
 from dolfinx_universal.conforming.checks_tet import all_outside_faces
 from dolfinx_universal.conforming.classify import (
+    inward_push,
     kept_cells,
     perturbation_candidates,
     positive_facets,
@@ -45,6 +46,7 @@ __all__ = [
     "PositiveFacets",
     "band_cells",
     "classify_near",
+    "frozen_images",
     "gamma_h",
     "map_band",
     "perturb",
@@ -661,9 +663,7 @@ def frozen_images(
     xp[moved] = closest[moved]
     y = xp.copy()
     if alpha != 0.0:
-        pushed = band[pushed_mask[band]]
-        f = alpha * h[pushed] * (1.0 + phi[pushed] / R_r[pushed])
-        y[pushed] -= f[:, None] * normal[pushed]
+        inward_push(y, band[pushed_mask[band]], phi, normal, h, R_r, alpha)
     snapped = band[on_gamma[band]]
     y[snapped] = closest[snapped]
     return xp, y

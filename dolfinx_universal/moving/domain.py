@@ -473,7 +473,7 @@ class MovingDomain:
         images = [self.universal.images_at(b, sm) for b in boundaries]
         band = np.flatnonzero(np.isfinite(sm.phi))
         fixed = self._relaxed_vertices().copy()
-        normal_now = self._now_normals()
+        normal_now = self._now_images()[2]
         cos = np.cos(np.radians(BRANCH_ANGLE))
         for _, _, normal in images:
             fixed[band] |= np.einsum("nd,nd->n", normal[band], normal_now[band]) < cos
@@ -505,9 +505,6 @@ class MovingDomain:
             sm, now = self._step_map  # type: ignore[misc]
             self._images = self.universal.images_at(now, sm)
         return self._images
-
-    def _now_normals(self) -> npt.NDArray[np.float64]:
-        return self._now_images()[2]
 
     def _relaxed_vertices(self) -> npt.NDArray[np.bool_]:
         """Vertices whose image the relaxation of the last step moved (collective)."""
@@ -738,12 +735,16 @@ class MovingDomain:
         ghosts (collective)."""
         if self.comm.size == 1:
             return
-        d = self.tdim
-        vector = la.vector(self.mesh.geometry.index_map(), d, dtype=np.float64)
+        d, vector = self.tdim, self._copy_vector
         vector.array[:] = x[:, :d].ravel()
         vector.scatter_forward()
         n = self.mesh.geometry.index_map().size_local
         x[n:, :d] = vector.array.reshape(-1, d)[n:]
+
+    @cached_property
+    def _copy_vector(self) -> la.Vector:
+        """The nodes' vector of :meth:`_sync_ghost_copy` (made once)."""
+        return la.vector(self.mesh.geometry.index_map(), self.tdim, dtype=np.float64)
 
     def _check_coverage(self, boundary: Boundary) -> None:
         """Raise if ``boundary`` needs a finer background than :meth:`from_motion` built."""

@@ -222,7 +222,6 @@ class TimeStepper:
         self._node_of_dof = node
         self.transfer = node_transfer(mesh, md.universal.cell_vertices, V)
         self._levels: list[_Level] = []
-        self._last_slope: tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]] | None = None
         self.timings = dict.fromkeys(("update", "nodes", "transfer", "solve"), 0.0)
         """Seconds spent (this rank) in the domain's updates, the nodes' paths, the
         transfers and the user's solves."""
@@ -332,17 +331,16 @@ class TimeStepper:
         t0 = time.perf_counter()
         self.md.update(boundary)
         self.timings["update"] += time.perf_counter() - t0
-        self._last_slope = None
+        slope = None
         if self.scheme in TABLEAUX or len(self._levels) < self.order:
             # Runge–Kutta, or the start of a BDF: ESDIRK3 where the last slope is known
             esdirk = self._levels[-1].slope is not None and self.scheme != "SDIRK3"
-            values = self._dirk(t1, step, solve, "ESDIRK3" if esdirk else "SDIRK3")
+            values, slope = self._dirk(t1, step, solve, "ESDIRK3" if esdirk else "SDIRK3")
         else:
             values = self._bdf(t1, solve)
         self._levels.append(
-            _Level(t1, boundary, self._nodes(), self.md.active_mask.copy(), values,
-                   self._last_slope)
-        )  # fmt: skip
+            _Level(t1, boundary, self._nodes(), self.md.active_mask.copy(), values, slope)
+        )
         del self._levels[: -max(self.order, 1)]
         return t1
 
@@ -374,26 +372,26 @@ class TimeStepper:
 
     def _dirk(
         self, t1: float, step: float, solve: Callable[[], fem.Function], scheme: str
-    ) -> npt.NDArray[np.float64]:
+    ) -> tuple[npt.NDArray[np.float64], tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]]:
         """A step of the diagonally implicit Runge–Kutta method ``scheme`` to ``t1``: its
         stages on the current triangulation's nodes for the stage times (written into the
         mesh for each stage's solve). An explicit first stage takes the last step's final
-        slope, carried onto the current paths (first same as last)."""
+        slope, carried onto the current paths (first same as last). Returns the value at
+        ``t1`` and the final slope with the nodes' velocity there."""
         A, cs = TABLEAUX[scheme]
         level = self._levels[-1]
         x1 = self._nodes()
-        times = level.t + step * np.unique(np.concatenate([[0.0, 1.0], cs]))
+        fractions = np.unique(np.concatenate([[0.0, 1.0], cs]))  # the paths' times
+        times = level.t + step * fractions
         inner = [self.motion(float(t)) for t in times[1:-1]]
         nodes = [*self._paths([level.boundary, *inner]), x1]
-        at = {float(c): i for i, c in enumerate(np.unique(np.concatenate([[0.0, 1.0], cs])))}
         u0 = self._carry(level, nodes[0])
         geometry = self.md.mesh.geometry.x
         d = self.md.tdim
         data = self._start_data(nodes[0], float(times[0]))
         slopes: list[npt.NDArray[np.float64]] = []
         u = u0
-        for i, c in enumerate(cs):
-            path = at[float(c)]
+        for i, path in enumerate(np.searchsorted(fractions, cs)):
             geometry[:, :d] = nodes[path]
             w = self._set_velocity(derivative_weights(times, times[path]), nodes)
             self.t.value = times[path]
@@ -408,8 +406,7 @@ class TimeStepper:
             u = self._solve(solve)
             slopes.append((u - known) / (step * A[i, i]))
         geometry[:, :d] = x1
-        self._last_slope = (slopes[-1], _combine(derivative_weights(times, times[-1]), nodes))
-        return u
+        return u, (slopes[-1], _combine(derivative_weights(times, times[-1]), nodes))
 
     def _start_data(
         self, x0: npt.NDArray[np.float64], t0: float

@@ -245,9 +245,7 @@ class NodeTransfer:
         """
         bs, out = self._bs, values.copy()
         cells = self.moved_cells(x_old, active_old, x_new, active_new)
-        dof, cell, slot = self._dofs(cells)
-        points = np.einsum("ng,ngd->nd", self._N[slot], x_new[self._gdofmap[cell], : self.tdim])
-        best, X, choice = self._located(points, cell, x_old, active_old)
+        dof, cell, slot, best, X, choice = self._placed(cells, x_new, x_old, active_old)
         if len(dof):
             phi = self._basis.tabulate(0, X)[0, :, :, 0]  # (n, ndofs)
             old = values.reshape(-1, bs)[self._dofmap[best]]  # (n, ndofs, bs)
@@ -283,11 +281,9 @@ class NodeTransfer:
         )  # the same threshold on every rank
         faster = (np.abs(w_new - w_old) > SAME_PLACE * max(scale, 1e-300)).any(axis=1)
         cells = self.moved_cells(x_old, active_old, x_new, active_new, faster)
-        dof, cell, slot = self._dofs(cells)
-        points = np.einsum("ng,ngd->nd", self._N[slot], x_new[self._gdofmap[cell], :d])
-        w_p = np.einsum("ng,ngd->nd", self._N[slot], w_new[self._gdofmap[cell], :d])
-        best, X, choice = self._located(points, cell, x_old, active_old)
+        dof, cell, slot, best, X, choice = self._placed(cells, x_new, x_old, active_old)
         if len(dof):
+            w_p = np.einsum("ng,ngd->nd", self._N[slot], w_new[self._gdofmap[cell], :d])
             tab = self._basis.tabulate(1, X)[..., 0]  # (1 + d, n, ndofs)
             gtab = self._geometry.tabulate(1, X)[..., 0]  # (1 + d, n, nodes)
             nodes = x_old[self._gdofmap[best], :d]
@@ -302,22 +298,21 @@ class NodeTransfer:
             self._from_ghosts(out, dof, choice)
         return out
 
-    def _dofs(
-        self, cells: npt.NDArray[np.int64]
-    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.int64]]:
-        """The dofs of ``cells`` (each once), one cell holding each and the slot there."""
-        dofs = self._dofmap[cells]
-        dof, at = np.unique(dofs.ravel(), return_index=True)
-        return dof, cells[at // dofs.shape[1]], at % dofs.shape[1]
-
-    def _located(
+    def _placed(
         self,
-        points: npt.NDArray[np.float64],
-        cell: npt.NDArray[np.int64],
+        cells: npt.NDArray[np.int64],
+        x_new: npt.NDArray[np.float64],
         x_old: npt.NDArray[np.float64],
         active_old: npt.NDArray[np.bool_],
-    ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.float64], tuple[npt.NDArray[Any], ...]]:
-        """:meth:`_best_cells`, raising on every rank where a point has no old cell."""
+    ) -> tuple[Any, ...]:
+        """The dofs of ``cells`` (each once), one cell holding each and the slot there, and
+        the old cells (:meth:`_best_cells`) and reference coordinates of their places in
+        ``x_new``, with the choice's scores and cell numbers; raises on every rank where a
+        place has no old cell."""
+        dofs = self._dofmap[cells]
+        dof, at = np.unique(dofs.ravel(), return_index=True)
+        cell, slot = cells[at // dofs.shape[1]], at % dofs.shape[1]
+        points = np.einsum("ng,ngd->nd", self._N[slot], x_new[self._gdofmap[cell], : self.tdim])
         best, X, score, key = self._best_cells(points, cell, x_old, active_old)
         found = best >= 0
         raise_collective(
@@ -333,7 +328,7 @@ class NodeTransfer:
                 )
             ],
         )
-        return best, X, (score, key)
+        return dof, cell, slot, best, X, (score, key)
 
     def _from_ghosts(
         self,
