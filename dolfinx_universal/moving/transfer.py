@@ -43,6 +43,10 @@ point far outside a curved cell may lie beyond the reach of its map's continuati
 INSIDE = 1e-10
 """A point whose smallest barycentric coordinate in a cell is above ``-INSIDE`` is in it."""
 
+STRAIGHT = 1e-12
+"""A cell whose nodes are within this times its size of the affine map's is straight: the
+affine inverse is its pull-back (to well within :data:`NEWTON_TOLERANCE`)."""
+
 NEAREST = 12
 """Old active cells (nearest centroids) tried for a point outside the old cells around it."""
 
@@ -85,11 +89,16 @@ class NodeTransfer:
         self._basis = V.element.basix_element
         points = V.element.interpolation_points
         self._N = self._geometry.tabulate(0, points)[0, :, :, 0]  # (ndofs of V, nodes)
+        self._linear = basix.create_element(
+            basix.ElementFamily.P, self._geometry.cell_type, 1, basix.LagrangeVariant.equispaced
+        ).tabulate(0, self._geometry.points)[0, :, :, 0]  # (nodes, tdim + 1)
         self._dofmap = V.dofmap.list
         self._bs = V.dofmap.index_map_bs
         self._owned = V.dofmap.index_map.size_local
         self._c2v = cell_vertices
         self._v2c = _csr(cell_vertices, int(cell_vertices.max(initial=-1)) + 1)
+        imap = V.dofmap.index_map
+        self._d2c = _csr(self._dofmap, imap.size_local + imap.num_ghosts)
         self._comm = mesh.comm
         # cells' numbers in the input mesh: the same on any number of ranks, they decide
         # between the cells holding a point on their common boundary
@@ -124,62 +133,92 @@ class NodeTransfer:
         points: npt.NDArray[np.float64],
         cells: npt.NDArray[np.int64],
         x: npt.NDArray[np.float64],
+        straight: npt.NDArray[np.bool_] | None = None,
     ) -> npt.NDArray[np.float64]:
         """Reference coordinates of ``points (n, tdim)`` in ``cells (n,)`` of the geometry
-        ``x``: Newton's method on the degree-q map from the affine map's inverse (valid
-        for points outside the cell too: the map's polynomial continued); NaN where it
-        does not converge."""
+        ``x``: the affine map's inverse, exact on straight cells; on curved cells Newton's
+        method on the degree-q map from there (valid for points outside the cell too: the
+        map's polynomial continued); NaN where it does not converge. ``straight``: which
+        cells of ``x`` are straight (:meth:`straight_cells`; computed when not given)."""
         d = self.tdim
-        nodes = x[self._gdofmap[cells], :d]  # (n, nodes, d)
-        v0 = nodes[:, 0]
-        J = np.stack([nodes[:, k + 1] - v0 for k in range(d)], axis=2)
-        X = np.linalg.solve(J, (points - v0)[..., None])[..., 0]
+        vertices = x[self._gdofmap[cells, : d + 1], :d]  # (n, d + 1, d)
+        J = np.swapaxes(vertices[:, 1:] - vertices[:, :1], 1, 2)
+        X = np.einsum("nij,nj->ni", _inverse(J), points - vertices[:, 0])
         if self._geometry.degree == 1 or len(points) == 0:
             return X
+        if straight is None:
+            straight = self.straight_cells(x)
+        curved = np.flatnonzero(~straight[cells])
+        if len(curved):
+            nodes = x[self._gdofmap[cells[curved]], :d]
+            size = np.abs(J[curved]).max(axis=(1, 2))
+            X[curved] = self._newton(points[curved], nodes, X[curved], size)
+        return X
+
+    def straight_cells(self, x: npt.NDArray[np.float64]) -> npt.NDArray[np.bool_]:
+        """Which cells of the geometry ``x`` are straight: their nodes are within
+        :data:`STRAIGHT` times their size of the affine map's."""
+        d = self.tdim
+        nodes = x[self._gdofmap, :d]  # (cells, nodes, d)
+        affine = np.matmul(self._linear, nodes[:, : d + 1])
+        size = np.abs(nodes[:, 1 : d + 1] - nodes[:, :1]).max(axis=(1, 2))
+        return np.abs(nodes - affine).max(axis=(1, 2)) <= STRAIGHT * size
+
+    def _newton(
+        self,
+        points: npt.NDArray[np.float64],
+        nodes: npt.NDArray[np.float64],
+        X: npt.NDArray[np.float64],
+        size: npt.NDArray[np.float64],
+    ) -> npt.NDArray[np.float64]:
+        """Newton's method for ``F(X) = points`` with the degree-q maps of ``nodes``, from
+        ``X``; each point iterates until its step is below rounding; NaN where the
+        residual stays above :data:`NEWTON_TOLERANCE` times ``size``."""
+        todo = np.arange(len(points))
         for _ in range(NEWTON_STEPS):
-            tab = self._geometry.tabulate(1, X)[..., 0]  # (1 + d, n, nodes)
-            F = np.einsum("ng,ngd->nd", tab[0], nodes) - points
-            J = np.einsum("kng,ngd->ndk", tab[1:], nodes)
+            tab = self._geometry.tabulate(1, X[todo])[..., 0]  # (1 + d, n, nodes)
+            F = np.einsum("ng,ngd->nd", tab[0], nodes[todo]) - points[todo]
+            J = np.einsum("kng,ngd->ndk", tab[1:], nodes[todo])
             dX = np.linalg.solve(J, F[..., None])[..., 0]
-            X -= dX
-            if np.abs(dX).max() < 1e-15:
+            X[todo] -= dX
+            todo = todo[np.abs(dX).max(axis=1) >= 1e-15]
+            if len(todo) == 0:
                 break
         F = np.einsum("ng,ngd->nd", self._geometry.tabulate(0, X)[0, ..., 0], nodes) - points
-        size = np.abs(J).max(axis=(1, 2))
         X[~(np.abs(F).max(axis=1) <= NEWTON_TOLERANCE * size)] = np.nan  # no convergence
         return X
 
     def _best_cells(
         self,
         points: npt.NDArray[np.float64],
+        dofs: npt.NDArray[np.int64],
         start: npt.NDArray[np.int64],
         x_old: npt.NDArray[np.float64],
         active_old: npt.NDArray[np.bool_],
     ) -> tuple[npt.NDArray[Any], ...]:
-        """For each point, the old active cell that holds it (or, outside the old domain,
-        the one it is least far outside of), its reference coordinates, its score and the
-        cell's input number (:meth:`_choose`; score ``-inf`` where none was found).
+        """For each point (the new place of the dof ``dofs``, in the cell ``start``), the
+        old active cell that holds it (or, outside the old domain, the one it is least far
+        outside of), its reference coordinates, its score and the cell's input number
+        (:meth:`_choose`; score ``-inf`` where none was found).
 
-        The candidates are ``start`` (most points move within their cell), then for the
-        others the old active cells sharing a vertex with it, and for the points in none of
-        them (the boundary moved by more than a cell layer) the :data:`NEAREST` old active
-        cells with the nearest centroids."""
+        The candidates are the cells of the dof (most points move within them), then for
+        the points strictly inside none of them the old active cells sharing a vertex with
+        ``start``, and for the points in none of those (the boundary moved by more than a
+        cell layer) the :data:`NEAREST` old active cells with the nearest centroids."""
         n = len(points)
         best = np.full(n, -1, dtype=np.int64)
         score = np.full(n, -np.inf)
         key = np.full(n, np.inf)
         X = np.zeros((n, self.tdim))
-        state = (best, score, key, X)
-        own = np.column_stack([np.arange(n), start])
-        inside = self._choose(own[active_old[start]], points, x_old, state)
-        out = np.setdiff1d(np.arange(n), inside)  # most points stay inside their cell
-        offsets, v2c = self._v2c
-        v = self._c2v[start[out]].ravel()
-        counts = offsets[v + 1] - offsets[v]
-        cand = v2c[np.repeat(offsets[v], counts) + _ranges(counts)]
-        pts = np.repeat(np.repeat(out, self.tdim + 1), counts)
-        pairs = np.unique(np.column_stack([pts, cand]), axis=0)
-        self._choose(pairs[active_old[pairs[:, 1]]], points, x_old, state)
+        straight = self.straight_cells(x_old) if self._geometry.degree > 1 else None
+        state = (best, score, key, X, straight)
+        inside = self._choose(
+            _star_pairs(np.arange(n), dofs, *self._d2c, active_old, False), points, x_old, state
+        )
+        out = np.setdiff1d(np.arange(n), inside)  # most points stay inside a cell of the dof
+        v = self._c2v[start[out]]
+        pairs = _star_pairs(np.repeat(out, v.shape[1]), v.ravel(), *self._v2c, active_old)
+        self._choose(pairs, points, x_old, state)
         far = np.flatnonzero(score < 0.0)
         old = np.flatnonzero(active_old)
         if len(far) and len(old):
@@ -198,15 +237,15 @@ class NodeTransfer:
         state: tuple[npt.NDArray[Any], ...],
     ) -> npt.NDArray[np.int64]:
         """Keep for each point of the ``(point, cell)`` pairs the best cell so far in
-        ``state = (best, score, key, X)``: the largest score (0 for a cell holding the
+        ``state = (best, score, key, X, straight)``: the largest score (0 for a cell holding the
         point, within :data:`INSIDE`; its smallest barycentric coordinate outside), then the
         smallest input cell number (a point on the common boundary of cells takes the same
         cell on any number of ranks). Returns the points strictly inside their chosen
         cell."""
-        best, score, key, X = state
+        best, score, key, X, straight = state
         if len(pairs) == 0:
             return np.empty(0, dtype=np.int64)
-        Xp = self.pull_back(points[pairs[:, 0]], pairs[:, 1], x_old)
+        Xp = self.pull_back(points[pairs[:, 0]], pairs[:, 1], x_old, straight)
         lam = np.column_stack([1.0 - Xp.sum(axis=1), Xp]).min(axis=1)
         lam[np.isnan(lam)] = -np.inf  # the map's continuation did not reach the point
         s = np.where(lam >= -INSIDE, 0.0, lam)
@@ -313,7 +352,7 @@ class NodeTransfer:
         dof, at = np.unique(dofs.ravel(), return_index=True)
         cell, slot = cells[at // dofs.shape[1]], at % dofs.shape[1]
         points = np.einsum("ng,ngd->nd", self._N[slot], x_new[self._gdofmap[cell], : self.tdim])
-        best, X, score, key = self._best_cells(points, cell, x_old, active_old)
+        best, X, score, key = self._best_cells(points, dof, cell, x_old, active_old)
         found = best >= 0
         raise_collective(
             self._comm,
@@ -403,3 +442,41 @@ def _ranges(counts: npt.NDArray[np.int64]) -> npt.NDArray[np.int64]:
     """``concatenate([arange(c) for c in counts])``, without the loop."""
     ends = np.cumsum(counts)
     return np.arange(ends[-1] if len(ends) else 0) - np.repeat(ends - counts, counts)
+
+
+def _inverse(J: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Inverses of the matrices ``J (n, d, d)``, ``d`` = 2 or 3, by their adjugates (many
+    small matrices: several times faster than ``np.linalg.inv``)."""
+    if J.shape[1] == 2:
+        det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
+        adj = np.stack([np.stack([J[:, 1, 1], -J[:, 0, 1]], axis=1),
+                        np.stack([-J[:, 1, 0], J[:, 0, 0]], axis=1)], axis=1)  # fmt: skip
+        return adj / det[:, None, None]
+    if J.shape[1] == 3:
+        c = np.stack([np.cross(J[:, :, 1], J[:, :, 2]), np.cross(J[:, :, 2], J[:, :, 0]),
+                      np.cross(J[:, :, 0], J[:, :, 1])], axis=1)  # fmt: skip
+        det = np.einsum("ni,ni->n", J[:, :, 0], c[:, 0])
+        return c / det[:, None, None]
+    return np.linalg.inv(J)
+
+
+def _star_pairs(
+    points: npt.NDArray[np.int64],
+    entities: npt.NDArray[np.int64],
+    offsets: npt.NDArray[np.int64],
+    cells: npt.NDArray[np.int64],
+    active: npt.NDArray[np.bool_],
+    unique: bool = True,
+) -> npt.NDArray[np.int64]:
+    """The ``(point, cell)`` pairs of every point of ``points`` with the active cells of
+    the entity (vertex or dof) given with it in ``entities`` (``offsets, cells``: the
+    entity -> cell adjacency); each pair once unless ``unique`` is false (one entity per
+    point: its cells are distinct)."""
+    counts = offsets[entities + 1] - offsets[entities]
+    cand = cells[np.repeat(offsets[entities], counts) + _ranges(counts)]
+    pairs = np.column_stack([np.repeat(points, counts), cand])
+    if unique:
+        ncells = np.int64(len(active))
+        pairs = np.unique(pairs[:, 0] * ncells + pairs[:, 1])
+        pairs = np.column_stack([pairs // ncells, pairs % ncells])
+    return pairs[active[pairs[:, 1]]]
