@@ -211,7 +211,7 @@ class NodeTransfer:
         key = np.full(n, np.inf)
         X = np.zeros((n, self.tdim))
         straight = self.straight_cells(x_old) if self._geometry.degree > 1 else None
-        state = (best, score, key, X, straight)
+        state: tuple[Any, ...] = (best, score, key, X, straight)
         inside = self._choose(
             _star_pairs(np.arange(n), dofs, *self._d2c, active_old, False), points, x_old, state
         )
@@ -462,7 +462,7 @@ def _inverse(J: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
 
 def _star_pairs(
     points: npt.NDArray[np.int64],
-    entities: npt.NDArray[np.int64],
+    entities: npt.NDArray[np.integer],
     offsets: npt.NDArray[np.int64],
     cells: npt.NDArray[np.int64],
     active: npt.NDArray[np.bool_],
