@@ -26,14 +26,20 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
+
+from mpi4py import MPI
+from petsc4py import PETSc
 
 import basix.ufl
 import numpy as np
 import numpy.typing as npt
 import ufl
 from dolfinx import fem
+from dolfinx.io import vtkhdf
 
 from dolfinx_universal.boundaries.base import Boundary
+from dolfinx_universal.moving import checkpoint
 from dolfinx_universal.moving.domain import MovingDomain
 from dolfinx_universal.moving.transfer import node_transfer
 
@@ -119,6 +125,11 @@ def _combine(
     return out
 
 
+_Array = npt.NDArray[np.float64]
+_Slope = tuple[_Array, _Array]
+"""A Runge–Kutta step's final slope (dof values) and the nodes' velocity there."""
+
+
 @dataclass
 class _Level:
     """One step's solution: its time, boundary, nodes, active cells and dof values."""
@@ -146,7 +157,9 @@ class TimeStepper:
     the problem (at the time :attr:`t` on the current mesh) and returns the solution.
     Forms are compiled once: the integrator only sets :attr:`t`, :attr:`dt`, the
     coefficient :attr:`alpha`, the function :attr:`history` (the previous solutions carried
-    onto the current nodes, combined) and the mesh velocity :attr:`w`.
+    onto the current nodes, combined) and the mesh velocity :attr:`w`. A run is saved with
+    :meth:`write_checkpoint` and continued, by a stepper built in the same way (on any
+    number of ranks), after :meth:`read_checkpoint`.
 
     Parameters
     ----------
@@ -222,6 +235,7 @@ class TimeStepper:
         self._node_of_dof = node
         self.transfer = node_transfer(mesh, md.universal.cell_vertices, V)
         self._levels: list[_Level] = []
+        self._orders: tuple[checkpoint.DofOrder, checkpoint.DofOrder] | None = None
         self.timings = dict.fromkeys(("update", "nodes", "transfer", "solve"), 0.0)
         """Seconds spent (this rank) in the domain's updates, the nodes' paths, the
         transfers and the user's solves."""
@@ -265,6 +279,214 @@ class TimeStepper:
     def time(self) -> float:
         """The time of the last solution."""
         return self._levels[-1].t if self._levels else float(self.t.value)
+
+    # -- checkpoints ----------------------------------------------------------------------
+
+    def write_checkpoint(self, path: str | Path) -> None:
+        """Write the state of the run to the VTKHDF file ``path`` (collective).
+
+        The file (HDF5; name it ``*.vtkhdf``) opens in ParaView: DOLFINx writes the current
+        mesh (the whole background with its current nodes) and, as point data ``u`` at the
+        time of the last solution, that solution at the geometry nodes (interpolated into
+        the geometry's Lagrange space; the components of a mixed space's sub-functions side
+        by side; NaN at the nodes of no active cell, outside the domain). The group
+        ``/TimeStepper`` (:mod:`~dolfinx_universal.moving.checkpoint`) holds what
+        :meth:`read_checkpoint` needs to continue the run exactly: the scheme, the time
+        step, and for each of the last solutions kept its time, dof values and
+        Runge–Kutta slope. The nodes and active cells of these solutions are not stored:
+        they are those of the domain updated to ``motion(t)``. Dof values are stored in an
+        order that does not depend on the number of ranks. An existing file is replaced.
+
+        Parameters
+        ----------
+        path
+            The file to write.
+
+        Raises
+        ------
+        RuntimeError
+            Before :meth:`initialize` (on every rank).
+        """
+        if not self._levels:
+            raise RuntimeError("nothing to write: give the initial value first (initialize)")
+        md, newest = self.md, self._levels[-1]
+        u = fem.Function(self.V)
+        u.x.array[:] = newest.values
+        data = checkpoint.point_values(u, md.degree, md.active_mask)
+        vtkhdf.write_mesh(str(path), md.mesh)
+        vtkhdf.write_point_data(str(path), md.mesh, data.ravel(), newest.t)
+        values, nodes = self._dof_orders()
+        viewer = checkpoint.open_viewer(path, "a", md.comm)
+        try:
+            checkpoint.write_small(viewer, "format", [checkpoint.FORMAT_VERSION])
+            checkpoint.write_small(viewer, "scheme", [ord(c) for c in self.scheme])
+            checkpoint.write_small(viewer, "dt", [float(self.dt.value)])
+            checkpoint.write_small(viewer, "times", [lv.t for lv in self._levels])
+            checkpoint.write_small(
+                viewer, "has_slope", [lv.slope is not None for lv in self._levels]
+            )
+            checkpoint.write_small(viewer, "sizes", [values.size, nodes.size, md.comm.size])
+            nodes.write(viewer, "background", self._by_dof(md._x0))
+            for i, lv in enumerate(self._levels):
+                values.write(viewer, f"values_{i}", lv.values)
+                if lv.slope is not None:
+                    values.write(viewer, f"slope_{i}", lv.slope[0])
+                    nodes.write(viewer, f"velocity_{i}", self._by_dof(lv.slope[1]))
+        finally:
+            viewer.destroy()
+
+    def read_checkpoint(self, path: str | Path, u: fem.Function | None = None) -> fem.Function:
+        """Continue a run from the file ``path`` of :meth:`write_checkpoint` (collective).
+
+        The stepper must have been built as the one that wrote the file: the same
+        background, space, motion and scheme (the initial time and step are taken from the
+        file), on any number of ranks. It takes the file's time step and last solutions,
+        updating the moving domain to ``motion(t)`` for each of their times in turn (the
+        latest last): :meth:`advance` then takes the step that the writer would have
+        taken next. No :meth:`initialize` is needed.
+
+        Parameters
+        ----------
+        path
+            A file written by :meth:`write_checkpoint`.
+        u
+            A function of :attr:`V` to receive the last solution (default: a new one).
+
+        Returns
+        -------
+        The last solution, at the time :attr:`time`.
+
+        Raises
+        ------
+        FileNotFoundError
+            If there is no file ``path``.
+        ValueError
+            If the file holds no checkpoint of this format, or one of another scheme, of
+            another number of dofs or nodes, or of a background whose nodes differ (another
+            background, or one whose cells are numbered otherwise: a background that
+            :func:`~dolfinx_universal.io.redistribute` partitioned, as
+            :meth:`~dolfinx_universal.moving.domain.MovingDomain.from_motion` does on
+            several ranks, numbers its cells by the ranks' partition, so its checkpoints are
+            read on the same number of ranks only). Every rank raises, and nothing is changed.
+        """
+        md = self.md
+        kind = md.comm.bcast(checkpoint.file_kind(path) if md.comm.rank == 0 else None, root=0)
+        if kind == "missing":
+            raise FileNotFoundError(f"no checkpoint file {path}")
+        if kind != "hdf5":
+            raise ValueError(f"{path} is no HDF5 file")
+        if u is not None and u.x.array.size != self.history.x.array.size:
+            raise ValueError("u must be a function of the stepper's space V")
+        viewer = checkpoint.open_viewer(path, "r", md.comm)
+        try:
+            head, stored = self._read_state(viewer, path)
+        except PETSc.Error:
+            raise ValueError(
+                f"{path} holds no complete TimeStepper checkpoint (datasets of the group "
+                f"{checkpoint.GROUP} are missing)"
+            ) from None
+        finally:
+            viewer.destroy()
+        levels = []
+        for t, (level_values, slope) in zip(head["times"], stored, strict=True):
+            boundary = self.motion(float(t))
+            md.update(boundary)
+            levels.append(
+                _Level(float(t), boundary, self._nodes(), md.active_mask.copy(), level_values,
+                       slope)
+            )  # fmt: skip
+        self._levels = levels
+        self.dt.value = float(head["dt"][0])
+        self.t.value = levels[-1].t
+        u = fem.Function(self.V, name="u") if u is None else u
+        u.x.array[:] = levels[-1].values
+        return u
+
+    def _read_state(
+        self, viewer: PETSc.ViewerHDF5, path: str | Path
+    ) -> tuple[dict[str, npt.NDArray[np.float64]], list[tuple[_Array, _Slope | None]]]:
+        """The header of a checkpoint, checked, and each stored solution's dof values and
+        slope (collective)."""
+        values, nodes = self._dof_orders()
+        head = {
+            name: checkpoint.read_small(viewer, name)
+            for name in ("format", "scheme", "dt", "times", "has_slope", "sizes")
+        }
+        self._check_checkpoint(path, head, values, nodes)
+        md = self.md
+        background = self._by_node(nodes.read(viewer, "background"))
+        scale = md.comm.allreduce(float(np.abs(md._x0).max(initial=1.0)), op=MPI.MAX)
+        gap = md.comm.allreduce(float(np.abs(background - md._x0).max(initial=0.0)), op=MPI.MAX)
+        if gap > 1e-12 * scale:
+            raise ValueError(
+                f"{path} was written on another background, or on one whose cells are "
+                f"numbered otherwise (its nodes differ by {gap:.3g}): a background "
+                "partitioned by dolfinx_universal.io.redistribute (as "
+                "MovingDomain.from_motion does on several ranks) numbers its cells by "
+                f"the partition (the file comes from a run on {int(head['sizes'][2])} "
+                f"rank(s), this one has {md.comm.size})"
+            )
+        stored = []
+        for i, has_slope in enumerate(head["has_slope"]):
+            slope = None
+            if has_slope:
+                slope = (
+                    values.read(viewer, f"slope_{i}"),
+                    self._by_node(nodes.read(viewer, f"velocity_{i}")),
+                )
+            stored.append((values.read(viewer, f"values_{i}"), slope))
+        return head, stored
+
+    def _check_checkpoint(
+        self,
+        path: str | Path,
+        head: dict[str, npt.NDArray[np.float64]],
+        values: checkpoint.DofOrder,
+        nodes: checkpoint.DofOrder,
+    ) -> None:
+        """Raise (on every rank: the file's header is the same there) if the checkpoint
+        does not fit this stepper."""
+        version = int(head["format"][0])
+        if version != checkpoint.FORMAT_VERSION:
+            raise ValueError(
+                f"{path}: checkpoint format {version}, this version reads "
+                f"{checkpoint.FORMAT_VERSION}"
+            )
+        scheme = "".join(chr(int(c)) for c in head["scheme"])
+        if scheme != self.scheme:
+            raise ValueError(
+                f"{path} was written by a {scheme} stepper, this one is {self.scheme}: "
+                "build the stepper with the scheme of the run"
+            )
+        num_values, num_nodes = int(head["sizes"][0]), int(head["sizes"][1])
+        if (num_values, num_nodes) != (values.size, nodes.size):
+            raise ValueError(
+                f"{path} holds {num_values} dof values and {num_nodes} node coordinates, "
+                f"this stepper's space and mesh have {values.size} and {nodes.size}: build "
+                "it on the background and space of the run"
+            )
+        count = len(head["times"])
+        if not 1 <= count <= max(self.order, 1) or len(head["has_slope"]) != count:
+            raise ValueError(
+                f"{path}: {count} stored solutions, a {scheme} run keeps 1-{self.order}"
+            )
+
+    def _dof_orders(self) -> tuple[checkpoint.DofOrder, checkpoint.DofOrder]:
+        """The file orders of the dofs of :attr:`V` and of the nodes (through :attr:`W`),
+        made at the first checkpoint (collective)."""
+        if self._orders is None:
+            self._orders = (checkpoint.DofOrder(self.V), checkpoint.DofOrder(self.W))
+        return self._orders
+
+    def _by_dof(self, nodes: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """A node array ``(num_nodes, tdim)`` as the dof values of :attr:`W`."""
+        return nodes[self._node_of_dof, : self.md.tdim].ravel()
+
+    def _by_node(self, values: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+        """The dof values of :attr:`W` as a node array ``(num_nodes, tdim)``."""
+        out = np.empty((len(self._node_of_dof), self.md.tdim))
+        out[self._node_of_dof] = values.reshape(-1, self.md.tdim)
+        return out
 
     # -- stepping -------------------------------------------------------------------------
 
