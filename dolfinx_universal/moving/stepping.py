@@ -235,6 +235,7 @@ class TimeStepper:
         self._node_of_dof = node
         self.transfer = node_transfer(mesh, md.universal.cell_vertices, V)
         self._levels: list[_Level] = []
+        self._bdf_start = False
         self._orders: tuple[checkpoint.DofOrder, checkpoint.DofOrder] | None = None
         self.timings = dict.fromkeys(("update", "nodes", "transfer", "solve"), 0.0)
         """Seconds spent (this rank) in the domain's updates, the nodes' paths, the
@@ -292,7 +293,8 @@ class TimeStepper:
         by side; NaN at the nodes of no active cell, outside the domain). The group
         ``/TimeStepper`` (:mod:`~dolfinx_universal.moving.checkpoint`) holds what
         :meth:`read_checkpoint` needs to continue the run exactly: the scheme, the time
-        step, and for each of the last solutions kept its time, dof values and
+        step, the start (``initialize``'s ``start``), and for each of the last solutions
+        kept its time, dof values and
         Runge–Kutta slope. The nodes and active cells of these solutions are not stored:
         they are those of the domain updated to ``motion(t)``. Dof values are stored in an
         order that does not depend on the number of ranks. An existing file is replaced.
@@ -321,6 +323,7 @@ class TimeStepper:
             checkpoint.write_small(viewer, "format", [checkpoint.FORMAT_VERSION])
             checkpoint.write_small(viewer, "scheme", [ord(c) for c in self.scheme])
             checkpoint.write_small(viewer, "dt", [float(self.dt.value)])
+            checkpoint.write_small(viewer, "bdf_start", [float(self._bdf_start)])
             checkpoint.write_small(viewer, "times", [lv.t for lv in self._levels])
             checkpoint.write_small(
                 viewer, "has_slope", [lv.slope is not None for lv in self._levels]
@@ -397,6 +400,7 @@ class TimeStepper:
             )  # fmt: skip
         self._levels = levels
         self.dt.value = float(head["dt"][0])
+        self._bdf_start = bool(head["bdf_start"][0])
         self.t.value = levels[-1].t
         u = fem.Function(self.V, name="u") if u is None else u
         u.x.array[:] = levels[-1].values
@@ -410,7 +414,7 @@ class TimeStepper:
         values, nodes = self._dof_orders()
         head = {
             name: checkpoint.read_small(viewer, name)
-            for name in ("format", "scheme", "dt", "times", "has_slope", "sizes")
+            for name in ("format", "scheme", "dt", "bdf_start", "times", "has_slope", "sizes")
         }
         self._check_checkpoint(path, head, values, nodes)
         md = self.md
@@ -491,7 +495,10 @@ class TimeStepper:
     # -- stepping -------------------------------------------------------------------------
 
     def initialize(
-        self, u0: fem.Function, dudt: ufl.core.expr.Expr | fem.Function | None = None
+        self,
+        u0: fem.Function,
+        dudt: ufl.core.expr.Expr | fem.Function | None = None,
+        start: str | None = None,
     ) -> None:
         """Take ``u0`` (on the current mesh, at ``t0``) as the initial value.
 
@@ -500,7 +507,17 @@ class TimeStepper:
         ESDIRK3 (its explicit first stage needs it). Without it they are taken by SDIRK3,
         whose first step, with time-dependent boundary data, is accurate to second order
         only (its stage order is 1): this bounds the error of the whole run by ``C dt^2``.
+
+        ``start="BDF"`` takes the first steps of a BDF scheme by BDF of increasing order
+        instead (BDF1, then BDF2...): for an impulsive start, where ``u0`` does not meet
+        the boundary data (a body set in motion in a fluid at rest). A jump of the data is
+        no smooth solution, and the stages of a Runge–Kutta step resolve it with slopes of
+        alternating sign (its last stage's time derivative, hence a force computed from
+        it, has the wrong sign); implicit Euler's difference quotient has the jump's sign.
         """
+        if start not in (None, "BDF"):
+            raise ValueError(f"unknown start {start!r}: None or 'BDF'")
+        self._bdf_start = start == "BDF" and self.scheme not in TABLEAUX
         md = self.md
         assert md.boundary is not None
         slope = None
@@ -554,7 +571,7 @@ class TimeStepper:
         self.md.update(boundary)
         self.timings["update"] += time.perf_counter() - t0
         slope = None
-        if self.scheme in TABLEAUX or len(self._levels) < self.order:
+        if self.scheme in TABLEAUX or (len(self._levels) < self.order and not self._bdf_start):
             # Runge–Kutta, or the start of a BDF: ESDIRK3 where the last slope is known
             esdirk = self._levels[-1].slope is not None and self.scheme != "SDIRK3"
             values, slope = self._dirk(t1, step, solve, "ESDIRK3" if esdirk else "SDIRK3")
