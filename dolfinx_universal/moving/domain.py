@@ -484,14 +484,14 @@ class MovingDomain:
         positive = self._c2f[near[cut], np.argmin(sm.sign[cells[cut]], axis=1)]
         out = []
         for boundary, (xp, y, _) in zip(boundaries, images, strict=True):
-            if fixed.any():
-                xp[fixed] = sm.x[fixed]  # the background place the curved map blends from
-                inside = fixed & ~sm.on_gamma
-                y[inside] = sm.y[inside]
-                sliding = np.flatnonzero(fixed & sm.on_gamma)
-                y[sliding] = collective_call(
-                    self.comm, "closest-point projection", boundary.closest_point, sm.y[sliding]
-                )
+            # on every rank, with or without fixed vertices: the projection is collective
+            xp[fixed] = sm.x[fixed]  # the background place the curved map blends from
+            inside = fixed & ~sm.on_gamma
+            y[inside] = sm.y[inside]
+            sliding = np.flatnonzero(fixed & sm.on_gamma)
+            y[sliding] = collective_call(
+                self.comm, "closest-point projection", boundary.closest_point, sm.y[sliding]
+            )
             curve, nodes = self._curved_nodes(replace(sm, x=xp, y=y), boundary, near, cut, positive)
             x = self.mesh.geometry.x.copy()
             self._write_nodes(y, near, curve, sm.kept[near], nodes, x)
