@@ -43,6 +43,11 @@ point far outside a curved cell may lie beyond the reach of its map's continuati
 INSIDE = 1e-10
 """A point whose smallest barycentric coordinate in a cell is above ``-INSIDE`` is in it."""
 
+LAYERS = 2
+"""Vertex neighbourhoods around the old boundary and the moved cells whose old cells every
+rank considers for the places that its own cells do not hold (a point moves by less than
+a cell between two steps of a time integrator that resolves the motion)."""
+
 STRAIGHT = 1e-12
 """A cell whose nodes are within this times its size of the affine map's is straight: the
 affine inverse is its pull-back (to well within :data:`NEWTON_TOLERANCE`)."""
@@ -99,6 +104,8 @@ class NodeTransfer:
         self._v2c = _csr(cell_vertices, int(cell_vertices.max(initial=-1)) + 1)
         imap = V.dofmap.index_map
         self._d2c = _csr(self._dofmap, imap.size_local + imap.num_ghosts)
+        self._vertices = mesh.topology.index_map(0)
+        self._owned_cells = mesh.topology.index_map(tdim).size_local
         self._comm = mesh.comm
         # cells' numbers in the input mesh: the same on any number of ranks, they decide
         # between the cells holding a point on their common boundary
@@ -142,15 +149,25 @@ class NodeTransfer:
         cells of ``x`` are straight (:meth:`straight_cells`; computed when not given)."""
         d = self.tdim
         vertices = x[self._gdofmap[cells, : d + 1], :d]  # (n, d + 1, d)
-        J = np.swapaxes(vertices[:, 1:] - vertices[:, :1], 1, 2)
-        X = np.einsum("nij,nj->ni", _inverse(J), points - vertices[:, 0])
         if self._geometry.degree == 1 or len(points) == 0:
-            return X
+            return self._pull_back(points, vertices)
         if straight is None:
             straight = self.straight_cells(x)
         curved = np.flatnonzero(~straight[cells])
-        if len(curved):
-            nodes = x[self._gdofmap[cells[curved]], :d]
+        return self._pull_back(points, vertices, curved, x[self._gdofmap[cells[curved]], :d])
+
+    def _pull_back(
+        self,
+        points: npt.NDArray[np.float64],
+        vertices: npt.NDArray[np.float64],
+        curved: npt.NDArray[np.intp] | None = None,
+        nodes: npt.NDArray[np.float64] | None = None,
+    ) -> npt.NDArray[np.float64]:
+        """:meth:`pull_back` given the cells' vertices ``(n, tdim + 1, tdim)``, which
+        points are in curved cells and those cells' nodes."""
+        J = np.swapaxes(vertices[:, 1:] - vertices[:, :1], 1, 2)
+        X = np.einsum("nij,nj->ni", _inverse(J), points - vertices[:, 0])
+        if curved is not None and nodes is not None and len(curved):
             size = np.abs(J[curved]).max(axis=(1, 2))
             X[curved] = self._newton(points[curved], nodes, X[curved], size)
         return X
@@ -158,8 +175,11 @@ class NodeTransfer:
     def straight_cells(self, x: npt.NDArray[np.float64]) -> npt.NDArray[np.bool_]:
         """Which cells of the geometry ``x`` are straight: their nodes are within
         :data:`STRAIGHT` times their size of the affine map's."""
+        return self._straight(x[self._gdofmap, : self.tdim])
+
+    def _straight(self, nodes: npt.NDArray[np.float64]) -> npt.NDArray[np.bool_]:
+        """:meth:`straight_cells` of cells given by their nodes ``(cells, nodes, tdim)``."""
         d = self.tdim
-        nodes = x[self._gdofmap, :d]  # (cells, nodes, d)
         affine = np.matmul(self._linear, nodes[:, : d + 1])
         size = np.abs(nodes[:, 1 : d + 1] - nodes[:, :1]).max(axis=(1, 2))
         return np.abs(nodes - affine).max(axis=(1, 2)) <= STRAIGHT * size
@@ -195,6 +215,7 @@ class NodeTransfer:
         start: npt.NDArray[np.int64],
         x_old: npt.NDArray[np.float64],
         active_old: npt.NDArray[np.bool_],
+        nearest: bool = True,
     ) -> tuple[npt.NDArray[Any], ...]:
         """For each point (the new place of the dof ``dofs``, in the cell ``start``), the
         old active cell that holds it (or, outside the old domain, the one it is least far
@@ -204,7 +225,8 @@ class NodeTransfer:
         The candidates are the cells of the dof (most points move within them), then for
         the points strictly inside none of them the old active cells sharing a vertex with
         ``start``, and for the points in none of those (the boundary moved by more than a
-        cell layer) the :data:`NEAREST` old active cells with the nearest centroids."""
+        cell layer), with ``nearest``, the :data:`NEAREST` old active cells of this rank with
+        the nearest centroids."""
         n = len(points)
         best = np.full(n, -1, dtype=np.int64)
         score = np.full(n, -np.inf)
@@ -221,7 +243,7 @@ class NodeTransfer:
         self._choose(pairs, points, x_old, state)
         far = np.flatnonzero(score < 0.0)
         old = np.flatnonzero(active_old)
-        if len(far) and len(old):
+        if nearest and len(far) and len(old):
             centroids = x_old[self._gdofmap[old][:, : self.tdim + 1], : self.tdim].mean(axis=1)
             k = min(NEAREST, len(old))
             near = cKDTree(centroids).query(points[far], k=k)[1].reshape(len(far), k)
@@ -284,13 +306,22 @@ class NodeTransfer:
         """
         bs, out = self._bs, values.copy()
         cells = self.moved_cells(x_old, active_old, x_new, active_new)
-        dof, cell, slot, best, X, choice = self._placed(cells, x_new, x_old, active_old)
-        if len(dof):
-            phi = self._basis.tabulate(0, X)[0, :, :, 0]  # (n, ndofs)
-            old = values.reshape(-1, bs)[self._dofmap[best]]  # (n, ndofs, bs)
-            out.reshape(-1, bs)[dof] = np.einsum("na,nab->nb", phi, old)
+        dof, cell, slot, best, X, (score, key), points = self._placed(
+            cells, x_new, x_old, active_old, nearest=False
+        )
+        value = np.empty((len(dof), bs))
+        near = np.flatnonzero(score >= 0.0)
+        phi = self._basis.tabulate(0, X[near])[0, :, :, 0]  # (n, ndofs)
+        old = values.reshape(-1, bs)[self._dofmap[best[near]]]  # (n, ndofs, bs)
+        value[near] = np.einsum("na,nab->nb", phi, old)
+        far = np.flatnonzero(score < 0.0)
+        value[far], score[far], key[far] = self._extend(
+            points[far], x_old, active_old, values, cells
+        )
+        self._raise_unplaced(points, score)
+        out.reshape(-1, bs)[dof] = value
         if self._comm.size > 1:
-            self._from_ghosts(out, dof, choice)
+            self._from_ghosts(out, dof, (score, key))
         return out
 
     def carry_slope(
@@ -320,7 +351,7 @@ class NodeTransfer:
         )  # the same threshold on every rank
         faster = (np.abs(w_new - w_old) > SAME_PLACE * max(scale, 1e-300)).any(axis=1)
         cells = self.moved_cells(x_old, active_old, x_new, active_new, faster)
-        dof, cell, slot, best, X, choice = self._placed(cells, x_new, x_old, active_old)
+        dof, cell, slot, best, X, choice, _ = self._placed(cells, x_new, x_old, active_old)
         if len(dof):
             w_p = np.einsum("ng,ngd->nd", self._N[slot], w_new[self._gdofmap[cell], :d])
             tab = self._basis.tabulate(1, X)[..., 0]  # (1 + d, n, ndofs)
@@ -343,17 +374,26 @@ class NodeTransfer:
         x_new: npt.NDArray[np.float64],
         x_old: npt.NDArray[np.float64],
         active_old: npt.NDArray[np.bool_],
+        nearest: bool = True,
     ) -> tuple[Any, ...]:
         """The dofs of ``cells`` (each once), one cell holding each and the slot there, and
         the old cells (:meth:`_best_cells`) and reference coordinates of their places in
-        ``x_new``, with the choice's scores and cell numbers; raises on every rank where a
-        place has no old cell."""
+        ``x_new``, with the choice's scores and cell numbers, and the places; with
+        ``nearest``, raises on every rank where a place has no old cell."""
         dofs = self._dofmap[cells]
         dof, at = np.unique(dofs.ravel(), return_index=True)
         cell, slot = cells[at // dofs.shape[1]], at % dofs.shape[1]
         points = np.einsum("ng,ngd->nd", self._N[slot], x_new[self._gdofmap[cell], : self.tdim])
-        best, X, score, key = self._best_cells(points, dof, cell, x_old, active_old)
-        found = best >= 0
+        best, X, score, key = self._best_cells(points, dof, cell, x_old, active_old, nearest)
+        if nearest:
+            self._raise_unplaced(points, score)
+        return dof, cell, slot, best, X, (score, key), points
+
+    def _raise_unplaced(
+        self, points: npt.NDArray[np.float64], score: npt.NDArray[np.float64]
+    ) -> None:
+        """Raise on every rank where a place found no old cell (collective)."""
+        found = score > -np.inf
         raise_collective(
             self._comm,
             []
@@ -367,7 +407,61 @@ class NodeTransfer:
                 )
             ],
         )
-        return dof, cell, slot, best, X, (score, key)
+
+    def _extend(
+        self,
+        points: npt.NDArray[np.float64],
+        x_old: npt.NDArray[np.float64],
+        active_old: npt.NDArray[np.bool_],
+        values: npt.NDArray[np.float64],
+        moved: npt.NDArray[np.int64],
+    ) -> tuple[npt.NDArray[np.float64], ...]:
+        """The old function at ``points`` that found no old cell around them: in the old
+        active cell holding it, or, outside the old domain, continued from the one it is
+        least far outside of (the largest score, then the smallest input number) among
+        the :data:`NEAREST` with the nearest centroids (collective). The candidates are the
+        same on every number of ranks: the old active cells within :data:`LAYERS` vertex
+        neighbourhoods of the old inactive cells and of ``moved``, gathered from all ranks
+        (a band along Gamma: its size grows with Gamma's, not with the mesh's).
+        Returns the values ``(n, bs)``, the scores and the cell numbers."""
+        d, bs, comm = self.tdim, self._bs, self._comm
+        seed = ~active_old
+        seed[moved] = True
+        for _ in range(LAYERS):  # the cells sharing a vertex with the seed, layer by layer
+            touch = np.zeros(self._vertices.size_local + self._vertices.num_ghosts)
+            touch[self._c2v[seed]] = 1.0
+            if comm.size > 1:
+                touch = vertex_reduce(self._vertices, touch, "max")
+            seed = seed | (touch[self._c2v] > 0).any(axis=1)
+        band = active_old & seed
+        band[self._owned_cells :] = False  # each cell from its owner
+        own = np.flatnonzero(band)
+        part = (self._cell_key[own], x_old[self._gdofmap[own], :d],
+                values.reshape(-1, bs)[self._dofmap[own]])  # fmt: skip
+        parts = comm.allgather(part) if comm.size > 1 else [part]
+        keys, nodes, vals = (np.concatenate([p[i] for p in parts]) for i in range(3))
+        order = np.argsort(keys, kind="stable")  # the same arrays on every number of ranks
+        keys, nodes, vals = keys[order], nodes[order], vals[order]
+        n, k = len(points), min(NEAREST, len(keys))
+        if n == 0 or k == 0:
+            return np.zeros((n, bs)), np.full(n, -np.inf), np.full(n, np.inf)
+        centroids = nodes[:, : d + 1].mean(axis=1)
+        cand = cKDTree(centroids).query(points, k=k)[1].reshape(n * k)
+        at = np.repeat(np.arange(n), k)
+        curved = None
+        if self._geometry.degree > 1:
+            curved = np.flatnonzero(~self._straight(nodes)[cand])
+        X = self._pull_back(points[at], nodes[cand, : d + 1], curved,
+                            None if curved is None else nodes[cand[curved]])  # fmt: skip
+        lam = np.column_stack([1.0 - X.sum(axis=1), X]).min(axis=1)
+        lam[np.isnan(lam)] = -np.inf
+        s = np.where(lam >= -INSIDE, 0.0, lam)
+        c = keys[cand]
+        order = np.lexsort((c, -s, at))
+        first = order[np.r_[True, at[order[1:]] != at[order[:-1]]]]
+        phi = self._basis.tabulate(0, np.nan_to_num(X[first]))[0, :, :, 0]
+        value = np.einsum("na,nab->nb", phi, vals[cand[first]])
+        return value, s[first], c[first]
 
     def _from_ghosts(
         self,
