@@ -236,6 +236,7 @@ class TimeStepper:
         self.transfer = node_transfer(mesh, md.universal.cell_vertices, V)
         self._levels: list[_Level] = []
         self._bdf_start = False
+        self._t_start = 0.0  # the initial value's time (an impulsive start's state before)
         self._orders: tuple[checkpoint.DofOrder, checkpoint.DofOrder] | None = None
         self.timings = dict.fromkeys(("update", "nodes", "transfer", "solve"), 0.0)
         """Seconds spent (this rank) in the domain's updates, the nodes' paths, the
@@ -323,7 +324,7 @@ class TimeStepper:
             checkpoint.write_small(viewer, "format", [checkpoint.FORMAT_VERSION])
             checkpoint.write_small(viewer, "scheme", [ord(c) for c in self.scheme])
             checkpoint.write_small(viewer, "dt", [float(self.dt.value)])
-            checkpoint.write_small(viewer, "bdf_start", [float(self._bdf_start)])
+            checkpoint.write_small(viewer, "bdf_start", [float(self._bdf_start), self._t_start])
             checkpoint.write_small(viewer, "times", [lv.t for lv in self._levels])
             checkpoint.write_small(
                 viewer, "has_slope", [lv.slope is not None for lv in self._levels]
@@ -401,6 +402,7 @@ class TimeStepper:
         self._levels = levels
         self.dt.value = float(head["dt"][0])
         self._bdf_start = bool(head["bdf_start"][0])
+        self._t_start = float(head["bdf_start"][1])
         self.t.value = levels[-1].t
         u = fem.Function(self.V, name="u") if u is None else u
         u.x.array[:] = levels[-1].values
@@ -508,16 +510,20 @@ class TimeStepper:
         whose first step, with time-dependent boundary data, is accurate to second order
         only (its stage order is 1): this bounds the error of the whole run by ``C dt^2``.
 
-        ``start="BDF"`` takes the first steps of a BDF scheme by BDF of increasing order
-        instead (BDF1, then BDF2...): for an impulsive start, where ``u0`` does not meet
-        the boundary data (a body set in motion in a fluid at rest). A jump of the data is
-        no smooth solution, and the stages of a Runge–Kutta step resolve it with slopes of
-        alternating sign (its last stage's time derivative, hence a force computed from
-        it, has the wrong sign); implicit Euler's difference quotient has the jump's sign.
+        ``start="BDF"`` is for an impulsive start, where ``u0`` does not meet the boundary
+        data (a body set in motion in a fluid at rest): ``u0`` is the state before the
+        data's jump, and only the first step starts from it. The first two steps are then
+        taken by BDF1 and the next ones by BDF of increasing order (BDF2, ...). A jump is
+        no smooth solution: the stages of a Runge–Kutta step resolve it with slopes of
+        alternating sign, and a BDF2 formula reaching back to ``u0`` differentiates it
+        with the wrong sign (their time derivative, hence a force computed from it, has
+        the wrong sign); implicit Euler's difference quotient has the jump's sign. The
+        start's local errors are of second order.
         """
         if start not in (None, "BDF"):
             raise ValueError(f"unknown start {start!r}: None or 'BDF'")
         self._bdf_start = start == "BDF" and self.scheme not in TABLEAUX
+        self._t_start = float(self.t.value)
         md = self.md
         assert md.boundary is not None
         slope = None
@@ -592,6 +598,8 @@ class TimeStepper:
     def _bdf(self, t1: float, solve: Callable[[], fem.Function]) -> npt.NDArray[np.float64]:
         """A BDF step of the scheme's order to ``t1`` on the current triangulation."""
         levels = self._levels[::-1][: self.order]
+        if self._bdf_start and len(levels) > 1:  # the state before the jump: step 1 only
+            levels = [lv for lv in levels if lv.t != self._t_start]
         x1 = self._nodes()
         nodes = [x1, *self._paths([lv.boundary for lv in levels])]
         c = derivative_weights([t1] + [lv.t for lv in levels], t1)
