@@ -362,6 +362,12 @@ def force_figure(runs: list[dict], path) -> None:
         label = f"$h = D/{D / run['h_fine']:.0f}$, $\\Delta t = {run['dt']}$"
         axes[0].plot(run["t"], run["c_D"], style, lw=1, label=label)
         axes[1].plot(run["t"], run["c_L"], style, lw=1, label=label)
+    # the impulsive start's first steps (C_D of the order of 1/dt) outside the frame
+    later = [np.array(r["c_D"])[np.array(r["t"]) >= T_START] for r in runs]
+    low, high = min(v.min() for v in later), max(v.max() for v in later)
+    axes[0].set_ylim(low - 0.15 * (high - low), high + 0.15 * (high - low))
+    first = runs[-1]["c_D"][0]
+    axes[0].set_title(f"first step: $C_D = {first:.1f}$ (the impulsive start)", fontsize=9)
     axes[0].set_ylabel("$C_D$")
     axes[1].set_ylabel("$C_L$")
     axes[1].set_xlabel("t")
