@@ -106,6 +106,7 @@ class NodeTransfer:
         self._d2c = _csr(self._dofmap, imap.size_local + imap.num_ghosts)
         self._vertices = mesh.topology.index_map(0)
         self._owned_cells = mesh.topology.index_map(tdim).size_local
+        self._straight_cache: dict[tuple[Any, ...], npt.NDArray[np.bool_]] = {}
         self._comm = mesh.comm
         # cells' numbers in the input mesh: the same on any number of ranks, they decide
         # between the cells holding a point on their common boundary
@@ -177,6 +178,18 @@ class NodeTransfer:
         :data:`STRAIGHT` times their size of the affine map's."""
         return self._straight(x[self._gdofmap, : self.tdim])
 
+    def _straight_of(self, x: npt.NDArray[np.float64]) -> npt.NDArray[np.bool_]:
+        """:meth:`straight_cells` of ``x``, kept for later calls with the same nodes (a
+        step's nodes serve several transfers: every sub-space, and the steps of a BDF
+        stencil): the same array memory, shape and sum of the nodes."""
+        tag = (x.__array_interface__["data"][0], x.shape, float(x.sum()))
+        cache = self._straight_cache
+        if tag not in cache:
+            while len(cache) >= 4:  # the nodes of the last few steps
+                del cache[next(iter(cache))]
+            cache[tag] = self.straight_cells(x)
+        return cache[tag]
+
     def _straight(self, nodes: npt.NDArray[np.float64]) -> npt.NDArray[np.bool_]:
         """:meth:`straight_cells` of cells given by their nodes ``(cells, nodes, tdim)``."""
         d = self.tdim
@@ -232,7 +245,7 @@ class NodeTransfer:
         score = np.full(n, -np.inf)
         key = np.full(n, np.inf)
         X = np.zeros((n, self.tdim))
-        straight = self.straight_cells(x_old) if self._geometry.degree > 1 else None
+        straight = self._straight_of(x_old) if self._geometry.degree > 1 else None
         state: tuple[Any, ...] = (best, score, key, X, straight)
         inside = self._choose(
             _star_pairs(np.arange(n), dofs, *self._d2c, active_old, False), points, x_old, state
@@ -504,6 +517,8 @@ class MixedTransfer:
             Vi, dofs = W.sub(i).collapse()
             rows = np.concatenate([np.asarray(a) for a in dofs]) if isinstance(dofs, list) else dofs
             self.parts.append((NodeTransfer(mesh, cell_vertices, Vi), np.asarray(rows)))
+        for transfer, _ in self.parts[1:]:  # one geometry: the straight cells are shared
+            transfer._straight_cache = self.parts[0][0]._straight_cache
 
     def carry(self, values: npt.NDArray[np.float64], *geometry: Any) -> npt.NDArray[np.float64]:
         """:meth:`NodeTransfer.carry` of each sub-space's values."""
