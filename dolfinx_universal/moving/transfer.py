@@ -281,12 +281,8 @@ class NodeTransfer:
         if len(pairs) == 0:
             return np.empty(0, dtype=np.int64)
         Xp = self.pull_back(points[pairs[:, 0]], pairs[:, 1], x_old, straight)
-        lam = np.column_stack([1.0 - Xp.sum(axis=1), Xp]).min(axis=1)
-        lam[np.isnan(lam)] = -np.inf  # the map's continuation did not reach the point
-        s = np.where(lam >= -INSIDE, 0.0, lam)
         c = self._cell_key[pairs[:, 1]]
-        order = np.lexsort((c, -s, pairs[:, 0]))
-        first = order[np.r_[True, pairs[order[1:], 0] != pairs[order[:-1], 0]]]
+        first, lam, s = _best_pairs(pairs[:, 0], Xp, c)
         p = pairs[first, 0]
         better = (s[first] > score[p]) | ((s[first] == score[p]) & (c[first] < key[p]))
         p, first = p[better], first[better]
@@ -438,6 +434,9 @@ class NodeTransfer:
         (a band along Gamma: its size grows with Gamma's, not with the mesh's).
         Returns the values ``(n, bs)``, the scores and the cell numbers."""
         d, bs, comm = self.tdim, self._bs, self._comm
+        n = len(points)
+        if (comm.allreduce(n, op=MPI.SUM) if comm.size > 1 else n) == 0:  # nothing to gather
+            return np.zeros((0, bs)), np.full(0, -np.inf), np.full(0, np.inf)
         seed = ~active_old
         seed[moved] = True
         for _ in range(LAYERS):  # the cells sharing a vertex with the seed, layer by layer
@@ -455,7 +454,7 @@ class NodeTransfer:
         keys, nodes, vals = (np.concatenate([p[i] for p in parts]) for i in range(3))
         order = np.argsort(keys, kind="stable")  # the same arrays on every number of ranks
         keys, nodes, vals = keys[order], nodes[order], vals[order]
-        n, k = len(points), min(NEAREST, len(keys))
+        k = min(NEAREST, len(keys))
         if n == 0 or k == 0:
             return np.zeros((n, bs)), np.full(n, -np.inf), np.full(n, np.inf)
         centroids = nodes[:, : d + 1].mean(axis=1)
@@ -466,12 +465,8 @@ class NodeTransfer:
             curved = np.flatnonzero(~self._straight(nodes)[cand])
         X = self._pull_back(points[at], nodes[cand, : d + 1], curved,
                             None if curved is None else nodes[cand[curved]])  # fmt: skip
-        lam = np.column_stack([1.0 - X.sum(axis=1), X]).min(axis=1)
-        lam[np.isnan(lam)] = -np.inf
-        s = np.where(lam >= -INSIDE, 0.0, lam)
         c = keys[cand]
-        order = np.lexsort((c, -s, at))
-        first = order[np.r_[True, at[order[1:]] != at[order[:-1]]]]
+        first, _, s = _best_pairs(at, X, c)
         phi = self._basis.tabulate(0, np.nan_to_num(X[first]))[0, :, :, 0]
         value = np.einsum("na,nab->nb", phi, vals[cand[first]])
         return value, s[first], c[first]
@@ -567,6 +562,23 @@ def _inverse(J: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
         det = np.einsum("ni,ni->n", J[:, :, 0], c[:, 0])
         return c / det[:, None, None]
     return np.linalg.inv(J)
+
+
+def _best_pairs(
+    at: npt.NDArray[np.int64], X: npt.NDArray[np.float64], key: npt.NDArray[np.float64]
+) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.float64], npt.NDArray[np.float64]]:
+    """Of ``(point, cell)`` pairs (``at``: the points, ``X``: the reference coordinates
+    there, ``key``: the cells' input numbers), the best pair of each point: the largest
+    score (0 for a cell holding the point, within :data:`INSIDE`; its smallest barycentric
+    coordinate outside; ``-inf`` where the pull-back did not converge), then the smallest
+    cell number. Returns those pairs' indices and every pair's smallest barycentric
+    coordinate and score."""
+    lam = np.column_stack([1.0 - X.sum(axis=1), X]).min(axis=1)
+    lam[np.isnan(lam)] = -np.inf  # the map's continuation did not reach the point
+    score = np.where(lam >= -INSIDE, 0.0, lam)
+    order = np.lexsort((key, -score, at))
+    first = order[np.r_[True, at[order[1:]] != at[order[:-1]]]]
+    return first, lam, score
 
 
 def _star_pairs(
